@@ -1,0 +1,179 @@
+"""The body model (seed 000, DESIGN section 2): segments, joints, spheres, features, limits.
+
+A `Body` is an immutable pytree. Its static fields (names, parent indices, levels of the
+tree, kinds) are compile-time constants; its arrays (lengths, frames, limits, spheres,
+masses) can be differentiated, fitted and batched. The chain environment ->
+"center_of_gravity" joint -> "whole_body" segment -> root joint of seed 000 (Fig. 6) is
+explicit: segment 0 is always "whole_body" and joint 0 always "center_of_gravity".
+"""
+
+import difflib
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+WHOLE_BODY = "whole_body"
+CENTER_OF_GRAVITY = "center_of_gravity"
+# Columns of a pose's angle array.
+THETA, PHI, TAU = 0, 1, 2
+
+
+def unknown_name_error(kind: str, name: str, valid: tuple[str, ...]) -> KeyError:
+    """A KeyError that lists the valid names, closest first."""
+    close = difflib.get_close_matches(name, valid, n=3, cutoff=0.5)
+    hint = f" Did you mean {', '.join(repr(c) for c in close)}?" if close else ""
+    return KeyError(f"unknown {kind} {name!r}.{hint} Valid {kind}s: {', '.join(valid)}")
+
+
+class Pose(eqx.Module):
+    """A posture of a body: where it stands and every segment's orientation.
+
+    `angles[i] = (theta, phi, tau)` of segment i (rad): theta, phi the azimuth and polar
+    angle of its direction in its socket frame (seed 000), tau its twist deviation from the
+    standard orientation. Row 0 is the whole body ("stance" orientation, measured in the
+    world). `position` places the root joint in the world (m).
+    """
+
+    position: Float[Array, "3"]
+    angles: Float[Array, "n_seg 3"]
+
+
+class Body(eqx.Module):
+    """A sphere-skinned articulated body (seed 000). Build it with `diffbody.load_body`.
+
+    Frames: every segment's cross of axes has its origin at the proximal joint and +Z toward
+    the distal joint. `R_socket_rest[i]` is that frame in the standard position, expressed in
+    the segment's socket frame, which coincides with the world frame in the standard
+    position; `R_parent_socket[i]` turns the parent's twisted frame into segment i's socket.
+    """
+
+    name: str = eqx.field(static=True)
+    source: str = eqx.field(static=True)
+    segment_names: tuple[str, ...] = eqx.field(static=True)
+    joint_names: tuple[str, ...] = eqx.field(static=True)
+    parent: tuple[int, ...] = eqx.field(static=True)  # -1: the environment (world)
+    proximal_joint: tuple[int, ...] = eqx.field(static=True)
+    distal_joint: tuple[int, ...] = eqx.field(static=True)
+    levels: tuple[tuple[int, ...], ...] = eqx.field(static=True)  # segments by tree depth
+    standard_kind: tuple[str, ...] = eqx.field(static=True)  # "swing" or a limb name
+    limit_kind: tuple[str, ...] = eqx.field(static=True)  # "free", "box", "cone", "hinge"
+    sphere_segment: tuple[int, ...] = eqx.field(static=True)
+    feature_names: tuple[str, ...] = eqx.field(static=True)  # "segment.feature"
+    feature_sphere: tuple[int, ...] = eqx.field(static=True)
+    root_joint: int = eqx.field(static=True)  # the joint that `Pose.position` places
+    default_root_joint: int = eqx.field(static=True)  # distal joint of "whole_body"
+
+    lengths: Float[Array, " n_seg"]  # m, proximal to distal joint ("distance")
+    R_parent_socket: Float[Array, "n_seg 3 3"]  # parent twisted frame -> socket frame
+    R_socket_rest: Float[Array, "n_seg 3 3"]  # standard-position cross of axes in the socket
+    swing_lo: Float[Array, "n_seg 2"]  # rad, lower bounds of the swing vector (w_x, w_y)
+    swing_hi: Float[Array, "n_seg 2"]  # rad, upper bounds
+    swing_max: Float[Array, " n_seg"]  # rad, cone radius about the standard direction
+    twist_lo: Float[Array, " n_seg"]  # rad, "negative limit" of the twist
+    twist_hi: Float[Array, " n_seg"]  # rad, "positive limit"
+    masses: Float[Array, " n_seg"]  # kg
+    centroids: Float[Array, "n_seg 3"]  # m, segment cross of axes
+    sphere_origins: Float[Array, "n_sph 3"]  # m, cross of axes of the sphere's segment
+    sphere_radii: Float[Array, " n_sph"]  # m
+    feature_directions: Float[Array, "n_feat 3"]  # unit, cross of axes of the segment
+    enclosure_z: Float[Array, " n_seg"]  # m, enclosure centre (0, 0, z) in the cross of axes
+    enclosure_radii: Float[Array, " n_seg"]  # m
+    rest_position: Float[Array, "3"]  # m, the root joint in the standard position
+    R_world_pin_rest: Float[Array, "3 3"]  # pinned frame at the root joint, standard position
+
+    # --- name lookups (host side, outside jit) -------------------------------------------
+    @property
+    def n_segments(self) -> int:
+        return len(self.segment_names)
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def n_spheres(self) -> int:
+        return len(self.sphere_segment)
+
+    def segment_index(self, name: str) -> int:
+        """Index of a segment by name (raises KeyError listing the valid names)."""
+        try:
+            return self.segment_names.index(name)
+        except ValueError:
+            raise unknown_name_error("segment", name, self.segment_names) from None
+
+    def joint_index(self, name: str) -> int:
+        """Index of a joint by name (raises KeyError listing the valid names)."""
+        try:
+            return self.joint_names.index(name)
+        except ValueError:
+            raise unknown_name_error("joint", name, self.joint_names) from None
+
+    def feature_index(self, name: str) -> int:
+        """Index of a feature by its "segment.feature" name."""
+        try:
+            return self.feature_names.index(name)
+        except ValueError:
+            raise unknown_name_error("feature", name, self.feature_names) from None
+
+    def segment_spheres(self, name: str) -> np.ndarray:
+        """Indices of the surface spheres of a segment."""
+        i = self.segment_index(name)
+        return np.flatnonzero(np.asarray(self.sphere_segment) == i)
+
+    def children(self, name: str) -> tuple[str, ...]:
+        """Names of the segments hanging from a segment's distal joint."""
+        i = self.segment_index(name)
+        return tuple(n for n, p in zip(self.segment_names, self.parent) if p == i)
+
+    @property
+    def local_directions(self) -> Float[Array, "n_seg 3 3"]:
+        """Each segment's "forward", "left" and "up" (rows) in its own cross of axes: the
+        world directions of the standard position (seed 000: "the negative Z-axis is up
+        for the lower arm")."""
+        # Rows of R_socket_rest are the world (= socket, at rest) axes in the segment's frame.
+        return self.R_socket_rest
+
+    # --- poses ------------------------------------------------------------------------------
+    def rest_pose(self) -> Pose:
+        """The standard position: upright, feet flat on the ground (z = 0), toes forward,
+        arms at the sides with palms toward the thighs, the root joint above the world
+        origin, facing +X."""
+        from ._orientation import vector_to_azimuth_polar
+
+        d = self.R_socket_rest[:, :, 2]
+        theta, phi, _ = vector_to_azimuth_polar(d)
+        angles = jnp.stack([theta, phi, jnp.zeros_like(theta)], axis=-1)
+        return Pose(position=self.rest_position, angles=angles)
+
+    def with_root(self, joint: str) -> "Body":
+        """The same body placed by another joint (seed 000: "any other joint may be
+        substituted as the root, since the tree structure is undirected").
+
+        `Pose.position` then places `joint`, and the whole body's orientation (pose row 0)
+        sets the frame of the segment ending at that joint; everything else hangs from it.
+        Joint angles keep their meaning (each segment in the socket of its default proximal
+        segment), so limits and standard orientations are unchanged: re-rooting changes
+        which part of the body stays put when the angles change. E.g. with root
+        "left_toe_tip", bending the left ankle tilts the whole body over a planted left foot.
+        """
+        from ._kinematics import forward
+
+        j = self.joint_index(joint)
+        if j == CENTER_OF_GRAVITY_INDEX:
+            raise ValueError(
+                f"with_root: {joint!r} is the translating joint of the whole body; "
+                "choose a joint of the body tree"
+            )
+        base = eqx.tree_at(lambda b: b.root_joint, self, self.default_root_joint)
+        fk = forward(base, base.rest_pose())
+        seg = self.distal_joint.index(j)
+        return eqx.tree_at(
+            lambda b: (b.root_joint, b.rest_position, b.R_world_pin_rest),
+            self,
+            (j, fk.joint_positions[j], fk.R_world_twisted[seg]),
+        )
+
+
+CENTER_OF_GRAVITY_INDEX = 0

@@ -1,0 +1,142 @@
+"""Forward kinematics with twist propagated to the surface (seed 000, DESIGN section 3).
+
+`forward` is a pure, un-jitted function of one body and one pose: compose it under
+jax.jit / jax.vmap / jax.grad. Batching is jax.vmap over poses (or bodies).
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._body import PHI, TAU, THETA, Body, Pose
+from ._orientation import azimuth_polar_to_vector, orientation_matrix, standard_twist
+from ._rotations import rot_z, swing_rotation
+
+
+class Kinematics(eqx.Module):
+    """Everything `forward` computes for one pose (world frame, metres)."""
+
+    joint_positions: Float[Array, "n_joint 3"]  # joint 0 is the translating "center_of_gravity"
+    R_world_base: Float[Array, "n_seg 3 3"]  # cross of axes, standard orientation, no twist
+    R_world_twisted: Float[Array, "n_seg 3 3"]  # the same turned by the twist at the distal joint
+    sphere_centers: Float[Array, "n_sph 3"]
+    sphere_radii: Float[Array, " n_sph"]
+    feature_points: Float[Array, "n_feat 3"]  # origin + radius * direction of each feature
+    feature_normals: Float[Array, "n_feat 3"]  # the feature directions in the world
+    centroids: Float[Array, "n_seg 3"]  # each segment's centre of mass
+    center_of_gravity: Float[Array, "3"]  # of the whole body
+
+
+def socket_frames(
+    body: Body, angles: Float[Array, "k 3"], idx: np.ndarray | None = None
+) -> Float[Array, "k 3 3"]:
+    """Base frames in their sockets, Rz(theta) Ry(phi) Rz(s(theta, phi)), of segments `idx`
+    (all when None) whose pose angles are `angles`.
+
+    Limbs with a table (seed 000's left arm, its mirror, the legs) use it; all other
+    segments use the swing default of DESIGN section 4: the smallest rotation taking the
+    standard direction to the current one, applied to the standard-position frame.
+    """
+    idx = np.arange(body.n_segments) if idx is None else np.asarray(idx)
+    kinds = [body.standard_kind[i] for i in idx]
+    theta, phi = angles[:, THETA], angles[:, PHI]
+    d = azimuth_polar_to_vector(theta, phi)
+    R_rest = body.R_socket_rest[idx]
+    R = swing_rotation(R_rest[:, :, 2], d) @ R_rest
+    for limb in sorted(set(kinds) - {"swing"}):
+        mask = np.asarray([k == limb for k in kinds])
+        R_limb = orientation_matrix(theta, phi, standard_twist(theta, phi, limb))
+        R = jnp.where(mask[:, None, None], R_limb, R)
+    return R
+
+
+def twist_fraction(z: Float[Array, "*b"], length: Float[Array, "*b"]) -> Float[Array, "*b"]:
+    """Share of the segment's twist a point at height z turns by: z / length (seed 000,
+    Fig. 7 as corrected), clipped to [0, 1] so points beyond either end turn like that end."""
+    safe_length = jnp.where(length > 0, length, 1.0)
+    return jnp.where(length > 0, jnp.clip(z / safe_length, 0.0, 1.0), 0.0)
+
+
+def forward(body: Body, pose: Pose) -> Kinematics:
+    """Forward kinematics of one pose (seed 000).
+
+    Walks the tree level by level (the levels are static): a segment's socket is its
+    parent's twisted frame turned by the fixed socket rotation, its base frame is the
+    socket times Rz(theta) Ry(phi) Rz(s), its distal joint lies at (0, 0, length), and its
+    children hang from the base frame turned by its twist tau. Surface spheres, features and
+    the centroid turn about Z by tau * z / length.
+
+    Args:
+        body: the body (its arrays may be traced: FK is differentiable in the dimensions).
+        pose: `Pose` with `angles` (n_seg, 3) = (theta, phi, tau) and `position` (3,).
+
+    Returns:
+        `Kinematics`: joint positions, frames, sphere centres and radii, feature points,
+        centroids and the whole body's center of gravity.
+    """
+    angles = jnp.asarray(pose.angles)
+    tau = angles[:, TAU]
+    R_twist = rot_z(tau)
+    R_parent_base = body.R_parent_socket @ socket_frames(body, angles)
+    n = body.n_segments
+    dtype = R_parent_base.dtype
+    R_base = jnp.zeros((n, 3, 3), dtype)
+    R_twisted = jnp.zeros((n, 3, 3), dtype)
+    p_prox = jnp.zeros((n, 3), dtype)
+    p_dist = jnp.zeros((n, 3), dtype)
+    parents = np.asarray(body.parent)
+    for level in body.levels:
+        idx = np.asarray(level)
+        par = parents[idx]
+        if par[0] < 0:  # the whole body hangs from the environment
+            R_up = jnp.broadcast_to(jnp.eye(3, dtype=dtype), (len(idx), 3, 3))
+            p_up = jnp.broadcast_to(jnp.asarray(pose.position, dtype), (len(idx), 3))
+        else:
+            R_up, p_up = R_twisted[par], p_dist[par]
+        Rb = R_up @ R_parent_base[idx]
+        R_base = R_base.at[idx].set(Rb)
+        R_twisted = R_twisted.at[idx].set(Rb @ R_twist[idx])
+        p_prox = p_prox.at[idx].set(p_up)
+        p_dist = p_dist.at[idx].set(p_up + Rb[:, :, 2] * body.lengths[idx, None])
+
+    if body.root_joint != body.default_root_joint:
+        # Re-rooted body: pin the frame ending at the root joint to the whole body's
+        # orientation and put the root joint at `position` (see Body.with_root).
+        seg = body.distal_joint.index(body.root_joint)
+        Rc = R_twisted[0] @ body.R_world_pin_rest @ R_twisted[seg].T
+        offset = pose.position - Rc @ p_dist[seg]
+        R_base, R_twisted = Rc @ R_base, Rc @ R_twisted
+        p_prox = p_prox @ Rc.T + offset
+        p_dist = p_dist @ Rc.T + offset
+
+    joint_positions = jnp.concatenate([p_prox[:1], p_dist], axis=0)
+
+    def on_segment(seg: np.ndarray, local: Array) -> tuple[Array, Array]:
+        """Frames (twist propagated) and origins for points at `local` on segments `seg`."""
+        frac = twist_fraction(local[:, 2], body.lengths[seg])
+        R = R_base[seg] @ rot_z(tau[seg] * frac)
+        return R, p_prox[seg]
+
+    sph_seg = np.asarray(body.sphere_segment, dtype=int)
+    R_s, p_s = on_segment(sph_seg, body.sphere_origins)
+    centers = p_s + jnp.einsum("kij,kj->ki", R_s, body.sphere_origins)
+    f_sph = np.asarray(body.feature_sphere, dtype=int)
+    normals = jnp.einsum("kij,kj->ki", R_s[f_sph], body.feature_directions)
+    features = centers[f_sph] + body.sphere_radii[f_sph, None] * normals
+    all_seg = np.arange(n)
+    R_c, p_c = on_segment(all_seg, body.centroids)
+    centroids = p_c + jnp.einsum("kij,kj->ki", R_c, body.centroids)
+    total = jnp.sum(body.masses)
+    cog = jnp.sum(body.masses[:, None] * centroids, axis=0) / jnp.where(total > 0, total, 1.0)
+    return Kinematics(
+        joint_positions=joint_positions,
+        R_world_base=R_base,
+        R_world_twisted=R_twisted,
+        sphere_centers=centers,
+        sphere_radii=body.sphere_radii,
+        feature_points=features,
+        feature_normals=normals,
+        centroids=centroids,
+        center_of_gravity=cog,
+    )

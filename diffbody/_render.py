@@ -1,0 +1,152 @@
+"""Pictures of the sphere body: shaded spheres drawn back to front, like seed 000's
+displays, with matplotlib (orthographic views)."""
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ._body import Body, Pose
+
+VIEWS = {  # (azimuth, elevation) of the camera, degrees; azimuth from +X toward +Y
+    "front": (0.0, 0.0),
+    "back": (180.0, 0.0),
+    "left": (90.0, 0.0),
+    "side": (90.0, 0.0),
+    "right": (-90.0, 0.0),
+    "top": (0.0, 90.0),
+    "perspective": (35.0, 20.0),
+}
+_REGION_COLOURS = {  # muted, so that the shading reads
+    "skin": (0.87, 0.72, 0.60),
+    "torso": (0.42, 0.55, 0.72),
+    "arm": (0.55, 0.66, 0.80),
+    "leg": (0.35, 0.42, 0.55),
+    "foot": (0.30, 0.30, 0.33),
+}
+
+
+def _region(segment: str) -> str:
+    if segment in ("head", "neck") or segment.endswith("hand"):
+        return "skin"
+    if segment.endswith("foot"):
+        return "foot"
+    if any(k in segment for k in ("thigh", "shank")):
+        return "leg"
+    if any(k in segment for k in ("arm", "clavicle")):
+        return "arm"
+    return "torso"
+
+
+def _camera(view: str | tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """Unit vectors toward the camera, screen right and screen up, and a label."""
+    if isinstance(view, str):
+        if view not in VIEWS:
+            raise ValueError(f"render: unknown view {view!r}; use one of {sorted(VIEWS)} "
+                             "or (azimuth_deg, elevation_deg)")
+        az, el = VIEWS[view]
+        label = view
+    else:
+        az, el = (float(v) for v in view)
+        label = f"az {az:.0f}°, el {el:.0f}°"
+    a, e = np.radians(az), np.radians(el)
+    to_camera = np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+    right = np.array([-np.sin(a), np.cos(a), 0.0])
+    up = np.cross(to_camera, right)
+    return to_camera, right, up, label
+
+
+def draw(ax, body: Body, pose: Pose, view: str | tuple[float, float] = "front",
+         *, features: bool = False, skeleton: bool = False, ground: bool = True) -> None:
+    """Draw the shaded sphere body into a matplotlib Axes."""
+    from matplotlib.collections import PatchCollection
+    from matplotlib.patches import Circle
+
+    from ._kinematics import forward
+
+    fk = forward(body, pose)
+    centers = np.asarray(fk.sphere_centers, dtype=float)
+    radii = np.asarray(fk.sphere_radii, dtype=float)
+    to_camera, right, up, label = _camera(view)
+    xy = np.stack([centers @ right, centers @ up], axis=-1)
+    order = np.argsort(centers @ to_camera)  # far first (painter's algorithm)
+    light = np.array([-0.45, 0.6])  # light from the upper left of the screen
+    layers = 6
+    patches, colours = [], []
+    for k in order:
+        base = np.array(_REGION_COLOURS[_region(body.segment_names[body.sphere_segment[k]])])
+        for j in range(layers):
+            t = j / (layers - 1)
+            r = radii[k] * (1.0 - 0.8 * t)
+            c = xy[k] + light * radii[k] * 0.45 * t
+            shade = base * (0.45 + 0.6 * t**0.7) + 0.25 * t**4
+            patches.append(Circle((c[0], c[1]), r))
+            colours.append(np.clip(shade, 0.0, 1.0))
+    ax.add_collection(PatchCollection(patches, facecolors=colours, edgecolors="none"))
+    if skeleton:
+        p = np.asarray(fk.joint_positions, dtype=float)
+        for i in range(1, body.n_segments):
+            a, b = p[body.proximal_joint[i]], p[body.distal_joint[i]]
+            ax.plot([a @ right, b @ right], [a @ up, b @ up], color="k", lw=0.8, zorder=3)
+    if features:
+        f = np.asarray(fk.feature_points, dtype=float)
+        ax.scatter(f @ right, f @ up, s=6, color="crimson", zorder=4)
+    lo, hi = xy.min(axis=0) - radii.max(), xy.max(axis=0) + radii.max()
+    if ground and abs(up[2]) > 0.5:
+        ax.axhline(0.0 if up[2] > 0 else 0.0, color="0.5", lw=0.8, zorder=0)
+        lo[1] = min(lo[1], -0.05)
+    pad = 0.05 * (hi - lo).max()
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_aspect("equal")
+    ax.set_title(label, fontsize=9)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    for s in ax.spines.values():
+        s.set_visible(False)
+
+
+def render(
+    body: Body,
+    pose: Pose,
+    path: str | Path,
+    view: str | tuple[float, float] | Sequence[str | tuple[float, float]] = "front",
+    *,
+    features: bool = False,
+    skeleton: bool = False,
+    dpi: int = 120,
+    title: str | None = None,
+) -> Path:
+    """Write a PNG of the shaded sphere body in `pose`.
+
+    Args:
+        body, pose: what to draw.
+        path: the PNG file to write.
+        view: "front", "back", "left" (= "side"), "right", "top", "perspective", an
+            (azimuth_deg, elevation_deg) pair for the camera (azimuth from +X toward +Y),
+            or a list of these for several panels side by side.
+        features: mark the named feature points; skeleton: draw the segment axes.
+        dpi: resolution; title: a caption over the figure.
+
+    Returns:
+        The path written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    views = [view] if isinstance(view, str) or (
+        isinstance(view, tuple) and len(view) == 2 and not isinstance(view[0], (str, tuple))
+    ) else list(view)
+    fig, axes = plt.subplots(1, len(views), figsize=(3.2 * len(views), 5.2), squeeze=False)
+    for ax, v in zip(axes[0], views):
+        draw(ax, body, pose, v, features=features, skeleton=skeleton)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path

@@ -1,0 +1,118 @@
+"""Elementary rotations and singularity-safe vector helpers.
+
+Everything here is a pure function of arrays, broadcasting over leading axes. Near singular
+points the "double where" keeps gradients finite (as in jaxlie's _so3.py): the unsafe branch
+is evaluated on a harmless substitute input, so neither branch produces NaN or inf.
+"""
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+
+def eps_for(x: ArrayLike) -> float:
+    """A tiny positive number for x's dtype: squares below it count as zero."""
+    dtype = jnp.asarray(x).dtype
+    if not jnp.issubdtype(dtype, jnp.floating):
+        dtype = jnp.float32
+    return float(jnp.finfo(dtype).eps) ** 2
+
+
+def rot_z(angle: Float[ArrayLike, "*b"]) -> Float[Array, "*b 3 3"]:
+    """Rotation by `angle` (rad) about Z."""
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    o, z = jnp.ones_like(c), jnp.zeros_like(c)
+    return jnp.stack(
+        [jnp.stack([c, -s, z], -1), jnp.stack([s, c, z], -1), jnp.stack([z, z, o], -1)], -2
+    )
+
+
+def rot_y(angle: Float[ArrayLike, "*b"]) -> Float[Array, "*b 3 3"]:
+    """Rotation by `angle` (rad) about Y."""
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    o, z = jnp.ones_like(c), jnp.zeros_like(c)
+    return jnp.stack(
+        [jnp.stack([c, z, s], -1), jnp.stack([z, o, z], -1), jnp.stack([-s, z, c], -1)], -2
+    )
+
+
+def rot_x(angle: Float[ArrayLike, "*b"]) -> Float[Array, "*b 3 3"]:
+    """Rotation by `angle` (rad) about X."""
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    o, z = jnp.ones_like(c), jnp.zeros_like(c)
+    return jnp.stack(
+        [jnp.stack([o, z, z], -1), jnp.stack([z, c, -s], -1), jnp.stack([z, s, c], -1)], -2
+    )
+
+
+def safe_norm(v: Float[ArrayLike, "*b n"]) -> Float[Array, "*b"]:
+    """Euclidean norm whose gradient is finite (zero) at the zero vector."""
+    v = jnp.asarray(v)
+    sq = jnp.sum(v * v, axis=-1)
+    tiny = sq <= eps_for(v)
+    return jnp.where(tiny, 0.0, jnp.sqrt(jnp.where(tiny, 1.0, sq)))
+
+
+def safe_normalize(
+    v: Float[ArrayLike, "*b n"], fallback: Float[ArrayLike, "*b n"]
+) -> Float[Array, "*b n"]:
+    """v / |v|, or `fallback` where v is (numerically) zero; finite gradients everywhere."""
+    v = jnp.asarray(v)
+    sq = jnp.sum(v * v, axis=-1, keepdims=True)
+    tiny = sq <= eps_for(v)
+    safe_v = jnp.where(tiny, jnp.asarray(fallback, v.dtype), v)
+    return jnp.where(tiny, fallback, safe_v / jnp.sqrt(jnp.sum(safe_v * safe_v, -1, keepdims=True)))
+
+
+def safe_atan2(y: Float[ArrayLike, "*b"], x: Float[ArrayLike, "*b"]) -> Float[Array, "*b"]:
+    """atan2(y, x), defined as 0 with zero gradient at the origin (instead of NaN)."""
+    y, x = jnp.asarray(y), jnp.asarray(x)
+    tiny = (x * x + y * y) <= eps_for(x)
+    return jnp.where(tiny, 0.0, jnp.arctan2(jnp.where(tiny, 0.0, y), jnp.where(tiny, 1.0, x)))
+
+
+def skew(v: Float[ArrayLike, "*b 3"]) -> Float[Array, "*b 3 3"]:
+    """The cross-product matrix [v]x."""
+    v = jnp.asarray(v)
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    o = jnp.zeros_like(x)
+    return jnp.stack(
+        [jnp.stack([o, -z, y], -1), jnp.stack([z, o, -x], -1), jnp.stack([-y, x, o], -1)], -2
+    )
+
+
+def swing_rotation(
+    a: Float[ArrayLike, "*b 3"], b: Float[ArrayLike, "*b 3"]
+) -> Float[Array, "*b 3 3"]:
+    """The smallest rotation taking unit vector a to unit vector b.
+
+    R = I + [v]x + [v]x^2 / (1 + c) with v = a x b, c = a . b: a polynomial in a and b with no
+    normalisation, smooth everywhere except at b = -a (where the smallest rotation is not
+    unique); there the denominator is kept away from zero so values stay finite.
+    """
+    a, b = jnp.asarray(a), jnp.asarray(b)
+    v = jnp.cross(a, b)
+    c = jnp.sum(a * b, axis=-1)[..., None, None]
+    k = skew(v)
+    denom = jnp.maximum(1.0 + c, jnp.sqrt(eps_for(c)))
+    return jnp.eye(3, dtype=k.dtype) + k + (k @ k) / denom
+
+
+def cross_of_axes(direction) -> np.ndarray:
+    """Seed 000's cross of axes for a segment pointing along `direction` (world, standard
+    position): columns X, Y, Z. Z = direction; X lies in the vertical plane perpendicular to
+    world Y with a positive forward component (up if Z points forward or backward, forward
+    if Z is along world Y); Y = Z x X. Used at load time on the fixed standard geometry.
+    """
+    z = np.asarray(direction, dtype=float)
+    z = z / np.linalg.norm(z)
+    x = np.array([z[2], 0.0, -z[0]])
+    n = np.linalg.norm(x)
+    if n < 1e-12:
+        x = np.array([1.0, 0.0, 0.0])
+    else:
+        x = x / n
+        if x[0] < -1e-12 or (abs(x[0]) <= 1e-12 and x[2] < 0):
+            x = -x
+    y = np.cross(z, x)
+    return np.stack([x, y, z], axis=-1)

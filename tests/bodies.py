@@ -1,0 +1,59 @@
+"""A small body document covering every kind of segment, for tests that build bodies."""
+
+import copy
+import json
+
+
+def _sphere(origin, radius, features=()):
+    s = {"origin": list(origin), "radius": radius}
+    if features:
+        s["features"] = [{"name": n, "direction": list(d)} for n, d in features]
+    return s
+
+
+FIXED = {"kind": "box", "swing_x_deg": [0, 0], "swing_y_deg": [0, 0], "twist_deg": [0, 0]}
+
+MINI = {
+    "schema": "diffbody.body/1",
+    "name": "mini",
+    "sources": ["synthetic test body"],
+    "root_joint": "hip",
+    "segments": [
+        {"name": "trunk", "proximal": "hip", "distal": "neck", "length": 0.5,
+         "direction": [0, 0, 1],
+         "limits": {"kind": "box", "swing_x_deg": [-30, 30], "swing_y_deg": [-20, 60],
+                    "twist_deg": [-40, 40]},
+         "mass": 30.0, "centroid": [0.02, 0, 0.25],
+         "spheres": [_sphere([0.05, 0, 0.1], 0.12), _sphere([0.05, 0, 0.35], 0.14)]},
+        {"name": "left_clavicle", "proximal": "neck", "distal": "left_shoulder", "length": 0.18,
+         "direction": [0, 1, -0.2], "limits": {"kind": "cone", "swing_max_deg": 20,
+                                               "twist_deg": [0, 0]},
+         "mass": 1.0, "centroid": [0, 0, 0.09], "spheres": [_sphere([0, 0, 0.1], 0.05)]},
+        {"name": "left_upper_arm", "proximal": "left_shoulder", "distal": "left_elbow",
+         "length": 0.3, "direction": [0, 0, -1], "standard_orientation": "left_arm",
+         "limits": {"kind": "box", "swing_x_deg": [-30, 170], "swing_y_deg": [-60, 167],
+                    "swing_max_deg": 175, "twist_deg": [-90, 70]},
+         "mass": 2.0, "centroid": [0, 0, 0.15],
+         "spheres": [_sphere([0, 0, 0.0], 0.05), _sphere([0.03, 0.02, 0.15], 0.045),
+                     _sphere([0, 0, 0.3], 0.04, [("elbow", [-1, 0, 0])])]},
+        {"name": "left_forearm", "proximal": "left_elbow", "distal": "left_wrist", "length": 0.26,
+         "direction": [0, 0, -1],
+         "limits": {"kind": "hinge", "swing_y_deg": [0, 150], "twist_deg": [-80, 80]},
+         "mass": 1.5, "centroid": [0, 0, 0.12],
+         "spheres": [_sphere([0.02, 0.01, 0.05], 0.04),
+                     _sphere([0.01, 0.02, 0.26], 0.03, [("palm", [0, 1, 0])])]},
+        {"name": "left_thigh", "proximal": "hip", "distal": "left_knee", "length": 0.42,
+         "direction": [0, 0.1, -1], "limits": FIXED, "mass": 8.0, "centroid": [0, 0, 0.2],
+         "spheres": [_sphere([0, 0, 0.2], 0.08), _sphere([0, 0, 0.42], 0.06)]},
+    ],
+}
+
+
+def mini_doc() -> dict:
+    """A fresh, mutable copy of the small body document."""
+    return copy.deepcopy(MINI)
+
+
+def write(doc, path) -> str:
+    path.write_text(json.dumps(doc))
+    return str(path)
