@@ -1,4 +1,4 @@
-"""Build the default sphere-skinned bodies ``data/body_male50.json`` and ``data/body_female50.json``.
+"""Build the default sphere-skinned bodies data/body_male50.json and data/body_female50.json.
 
 Usage::
 
@@ -35,8 +35,8 @@ SCHEMA = "diffbody.body/1"
 # --------------------------------------------------------------------------------------
 
 CITE_ANSUR = (
-    "Gordon CC, Blackwell CL, Bradtmiller B, et al., 2014, \"2012 Anthropometric Survey of "
-    "U.S. Army Personnel: Methods and Summary Statistics\", NATICK/TR-15/007; public data "
+    'Gordon CC, Blackwell CL, Bradtmiller B, et al., 2014, "2012 Anthropometric Survey of '
+    'U.S. Army Personnel: Methods and Summary Statistics", NATICK/TR-15/007; public data '
     "release; P50 (unweighted sample median) from data/ansur2_percentiles.csv"
 )
 CITE_DELEVA = (
@@ -258,7 +258,9 @@ SRC_ANKLE = (
     "dorsiflexion 20 / plantar flexion 50, inversion 35 / eversion 25: Merck Manual Table 1 "
     "(talocrural hinge, inversion/eversion as twist)"
 )
-SRC_CLAVICLE = "shoulder-girdle ranges are not in the references: modelling choice (cone 20, no twist)"
+SRC_CLAVICLE = (
+    "shoulder-girdle ranges are not in the references: modelling choice (cone 20, no twist)"
+)
 SRC_PELVIS = "rigid pelvis: its orientation is the whole body's (modelling choice)"
 SRC_HEAD = (
     "whole cervical spine above C7 lumped into the skull_base joint; flexion 45 / extension 45 "
@@ -392,8 +394,12 @@ class Segment:
 
 
 def box(sx, sy, tw, swing_max=None, source="") -> dict:
-    d = {"kind": "box", "swing_x_deg": [rnd(v, DEG) for v in sx],
-         "swing_y_deg": [rnd(v, DEG) for v in sy], "twist_deg": [rnd(v, DEG) for v in tw]}
+    d = {
+        "kind": "box",
+        "swing_x_deg": [rnd(v, DEG) for v in sx],
+        "swing_y_deg": [rnd(v, DEG) for v in sy],
+        "twist_deg": [rnd(v, DEG) for v in tw],
+    }
     if swing_max is not None:
         d["swing_max_deg"] = rnd(swing_max, DEG)
     d["source"] = source
@@ -401,13 +407,21 @@ def box(sx, sy, tw, swing_max=None, source="") -> dict:
 
 
 def hinge(sy, tw, source="") -> dict:
-    return {"kind": "hinge", "swing_y_deg": [rnd(v, DEG) for v in sy],
-            "twist_deg": [rnd(v, DEG) for v in tw], "source": source}
+    return {
+        "kind": "hinge",
+        "swing_y_deg": [rnd(v, DEG) for v in sy],
+        "twist_deg": [rnd(v, DEG) for v in tw],
+        "source": source,
+    }
 
 
 def cone(swing_max, tw, source="") -> dict:
-    return {"kind": "cone", "swing_max_deg": rnd(swing_max, DEG),
-            "twist_deg": [rnd(v, DEG) for v in tw], "source": source}
+    return {
+        "kind": "cone",
+        "swing_max_deg": rnd(swing_max, DEG),
+        "twist_deg": [rnd(v, DEG) for v in tw],
+        "source": source,
+    }
 
 
 def neg(interval) -> list[float]:
@@ -440,18 +454,13 @@ def build(variant: str, sex: str) -> dict:
     body_h = _vertebral_body_heights_mm()
     joints_below = {v: j for v, j in zip(VERTEBRAE, list(DISC_HEIGHTS_MM)[1:])}
     joints_above = {v: j for v, j in zip(VERTEBRAE, list(DISC_HEIGHTS_MM)[:-1])}
-    w = {v: body_h[v] + 0.5 * (DISC_HEIGHTS_MM[joints_above[v]] + DISC_HEIGHTS_MM[joints_below[v]])
-         for v in VERTEBRAE}
+    w = {
+        v: body_h[v] + 0.5 * (DISC_HEIGHTS_MM[joints_above[v]] + DISC_HEIGHTS_MM[joints_below[v]])
+        for v in VERTEBRAE
+    }
     scale = (z_C7T1 - z_L4L5) / sum(w[v] for v in VERTEBRAE[:-1])  # T1..L4 span L4-L5 to C7-T1
     vlen = {v: w[v] * scale for v in VERTEBRAE}  # metres
     z_L5S1 = z_L4L5 - vlen["L5"]
-
-    # joint name above each vertebra
-    def joint_above(v: str) -> str:
-        return joints_above[v]
-
-    def joint_below(v: str) -> str:
-        return joints_below[v]
 
     target = {
         "center_hip": np.array([0.0, 0.0, z_hip]),
@@ -464,7 +473,7 @@ def build(variant: str, sex: str) -> dict:
     z = z_L5S1
     for v in reversed(VERTEBRAE):  # L5 up to T1
         z += vlen[v]
-        target[joint_above(v)] = np.array([x_spine, 0.0, z])
+        target[joints_above[v]] = np.array([x_spine, 0.0, z])
     for side, sg in (("left", 1.0), ("right", -1.0)):
         target[f"{side}_shoulder"] = np.array([0.0, sg * y_sh, z_sh])
         target[f"{side}_elbow"] = np.array([0.0, sg * y_sh, z_sh - L_ua])
@@ -481,7 +490,7 @@ def build(variant: str, sex: str) -> dict:
         ("right_pelvis", "center_hip", "right_hip"),
     ]
     for v in reversed(VERTEBRAE):
-        order.append((v, joint_below(v), joint_above(v)))
+        order.append((v, joints_below[v], joints_above[v]))
     order += [("neck", "C7_T1", "skull_base"), ("head", "skull_base", "vertex")]
     for side in ("left", "right"):
         order += [
@@ -509,7 +518,11 @@ def build(variant: str, sex: str) -> dict:
             s.direction = [left.direction[0], rnd(-left.direction[1], UNIT), left.direction[2]]
         else:
             s.length = rnd(np.linalg.norm(d), MM)
-            s.direction = rvec(unit(d), UNIT)
+            u = unit(d)
+            # snap directions meant to be axis-aligned (limbs hang straight, feet point
+            # forward, the spine is straight) so that rounding upstream leaves no 1e-6 tilt
+            u = np.where(np.abs(u) < 1e-3, 0.0, u)
+            s.direction = rvec(unit(u), UNIT)
         s.p0 = J[prox].copy()
         s.R = cross_of_axes(s.direction)
         J[dist] = J[prox] + s.length * unit(s.direction)
@@ -517,7 +530,7 @@ def build(variant: str, sex: str) -> dict:
 
     # ---------------- surface spheres ----------------------------------------------------
     twopi = 2.0 * math.pi
-    SPACING = 0.55  # sphere spacing along a limb, as a fraction of the local radius
+    SPACING = 0.6  # sphere spacing along a limb, as a fraction of the local radius
 
     # torso cross-sections (outer breadth, outer depth) per vertebra
     waist = (m["waistbreadth"], m["waistdepth"])
@@ -526,33 +539,39 @@ def build(variant: str, sex: str) -> dict:
     top = (1.30 * neck_base_d, 1.05 * neck_base_d)  # T1: base of the neck with the trapezius
     hips = (m["hipbreadth"], m["buttockdepth"])
     lerp = lambda a, b, t: (a[0] + (b[0] - a[0]) * t, a[1] + (b[1] - a[1]) * t)  # noqa: E731
+    # upper thorax: the breadth reaches the chest's quickly (shoulder girdle), the depth
+    # slowly (the sternal notch, suprasternale, is ~80 mm below cervicale)
+    up_b = {"T1": 0.0, "T2": 0.5, "T3": 0.8, "T4": 1.0, "T5": 1.0}
+    up_d = {"T1": 0.0, "T2": 0.15, "T3": 0.35, "T4": 0.6, "T5": 0.85}
     section = {
-        "T1": top,
-        "T2": lerp(top, chest, 0.45),
-        "T3": lerp(top, chest, 0.75),
-        "T4": lerp(top, chest, 0.92),
-        "T5": chest, "T6": chest, "T7": chest, "T8": chest,
-        "L3": waist, "L4": waist,
-        "L5": lerp(waist, hips, 0.25),
+        v: (top[0] + (chest[0] - top[0]) * up_b[v], top[1] + (chest[1] - top[1]) * up_d[v])
+        for v in up_b
     }
+    section.update(
+        {
+            "T6": chest,
+            "T7": chest,
+            "T8": chest,
+            "L3": waist,
+            "L4": waist,
+            "L5": lerp(waist, hips, 0.25),
+        }
+    )
     mid = ["T9", "T10", "T11", "T12", "L1", "L2"]
     for i, v in enumerate(mid):
         section[v] = lerp(chest, waist, (i + 1) / (len(mid) + 1))
     BACK = 0.040  # back surface behind the spine (m)
     N_RING = 8
 
-    def ring(s: Segment, z_local: float, breadth: float, depth: float, x_centre=None,
-             lateral_to=None):
+    def ring(s: Segment, z_local: float, breadth: float, depth: float) -> None:
+        """A torso slice: N_RING spheres on an ellipse whose outer breadth and depth are
+        the given ones, its back BACK behind the spine."""
         a, b = breadth / 2.0, depth / 2.0
         r = 0.6 * min(a, b)
-        xc = (b - BACK) if x_centre is None else x_centre
+        xc = b - BACK
         for k in range(N_RING // 2 + 1):  # angles 0..180 deg, mirrored for y < 0
             th = math.pi * k / (N_RING // 2)
             o = np.array([xc + (b - r) * math.cos(th), (a - r) * math.sin(th), z_local])
-            if lateral_to is not None and k == N_RING // 4:
-                # lateral sphere goes to the hemi-pelvis links (left; right mirrored later)
-                lateral_to.append((s.world(o), r))
-                continue
             s.add(o, r, mirror_pair=True)
 
     for v in VERTEBRAE:
@@ -609,7 +628,8 @@ def build(variant: str, sex: str) -> dict:
     r_face = 0.24 * HLn
     head_world.append((np.array([x0 + HLn / 2 - r_face - 0.004, 0.0, z_eye - 0.03]), r_face, []))
     r_chin = 0.11 * HLn
-    head_world.append((np.array([x0 + HLn / 2 - 0.01 - r_chin, 0.0, z_menton + r_chin]), r_chin, []))
+    chin = np.array([x0 + HLn / 2 - 0.01 - r_chin, 0.0, z_menton + r_chin])
+    head_world.append((chin, r_chin, []))
     r_jaw = 0.19 * HLn
     jaw_y = m["bizygomaticbreadth"] / 2.0 - r_jaw
     jaw = np.array([x0 + 0.3 * dxc + 0.01, jaw_y, z_menton + 0.035 + r_jaw * 0.5])
@@ -638,13 +658,13 @@ def build(variant: str, sex: str) -> dict:
     # ----- left limbs (right limbs are mirrored below) -----
     # clavicle: shoulder / trapezius line from the base of the neck to the deltoid
     cl = seg["left_clavicle"]
-    r_tr = 0.42 * r_nb
-    y_a, z_a = r_nb * 0.9, J["C7_T1"][2] + 0.015  # side of the neck base (top surface)
-    y_b, z_b = m["biacromialbreadth"] / 2.0 - 0.02, m["acromialheight"]  # acromion (top surface)
-    for t in (0.15, 0.45, 0.75):
+    r_tr = 0.55 * r_nb
+    y_a, z_a = 0.8 * r_nb, J["C7_T1"][2] + 0.02  # side of the neck base (top surface)
+    y_b, z_b = m["biacromialbreadth"] / 2.0 - 0.025, m["acromialheight"]  # acromion (top)
+    for t in (0.0, 0.33, 0.66, 1.0):
         yy = y_a + (y_b - y_a) * t
         zt = z_a + (z_b - z_a) * t
-        cl.add_world([-0.012, yy, zt - r_tr], r_tr)
+        cl.add_world([-0.015, yy, zt - r_tr], r_tr * (1.0 - 0.2 * t))
 
     # upper arm: deltoid (from bideltoid breadth) -> biceps (flexed) -> elbow
     ua = seg["left_upper_arm"]
@@ -675,7 +695,7 @@ def build(variant: str, sex: str) -> dict:
     PL = m["palmlength"]
     r_p = 0.19 * HB  # half the hand thickness (modelling choice: thickness 0.38 x breadth)
     xcol = HB / 2.0 - r_p
-    palm_z = np.linspace(0.35 * r_p, PL - 0.2 * r_p, 6)
+    palm_z = np.linspace(0.35 * r_p, PL - 0.2 * r_p, 7)
     for i, zz in enumerate(palm_z):
         width = 0.7 + 0.3 * min(1.0, i / 2)  # narrower at the wrist
         for cx in (-xcol * width, 0.0, xcol * width):
@@ -690,7 +710,7 @@ def build(variant: str, sex: str) -> dict:
 
     for cx, frac in ((-xcol * 0.92, 0.80), (0.0, 1.0), (xcol * 0.92, 0.90)):
         z_end = PL + frac * (Lh - PL) - r_f1
-        zs = stations(PL + 0.6 * r_p, z_end, r_f, 0.9)
+        zs = stations(PL + 0.6 * r_p, z_end, r_f, 1.15)
         for j, zz in enumerate(zs):
             if cx == 0.0 and j == len(zs) - 1:
                 hn.add([0.0, 0.0, Lh - r_f1], r_f1, [("fingertip", (0, 0, 1))])
@@ -699,8 +719,10 @@ def build(variant: str, sex: str) -> dict:
     # thumb: from the base of the palm, forward and down, slightly to the palm side
     r_t = 0.72 * r_p
     for t in (0.0, 0.5, 1.0):
-        hn.add([xcol + 0.2 * r_p + t * 0.45 * r_p, 0.35 * r_p * t, 0.3 * PL + t * 0.42 * PL],
-               r_t * (1.0 - 0.15 * t))
+        hn.add(
+            [xcol + 0.2 * r_p + t * 0.45 * r_p, 0.35 * r_p * t, 0.3 * PL + t * 0.42 * PL],
+            r_t * (1.0 - 0.15 * t),
+        )
 
     # thigh: thigh circumference -> lower thigh circumference, capped at hipbreadth/4 so the
     # two thighs touch but do not overlap and the hips are hipbreadth wide
@@ -742,9 +764,13 @@ def build(variant: str, sex: str) -> dict:
     r_instep = 0.62 * az
     r_ball_c = 0.30 * FB
     r_tip = 0.13 * FB
-    prof_ft = [(x_heel + r_heel, r_heel), (ax + 0.2 * (x_ball - ax), r_instep),
-               (x_ball, r_ball_c), (x_toe - r_tip, r_tip)]
-    xs = stations(x_heel + r_heel, x_toe - r_tip, lambda q: interp(q, prof_ft), 0.75)
+    prof_ft = [
+        (x_heel + r_heel, r_heel),
+        (ax + 0.2 * (x_ball - ax), r_instep),
+        (x_ball, r_ball_c),
+        (x_toe - r_tip, r_tip),
+    ]
+    xs = stations(x_heel + r_heel, x_toe - r_tip, lambda q: interp(q, prof_ft), 0.7)
     i_ball = int(np.argmin([abs(x - x_ball) for x in xs]))
     for k, xx in enumerate(xs):
         rr = interp(xx, prof_ft)
@@ -762,39 +788,71 @@ def build(variant: str, sex: str) -> dict:
     x_s0 = ax + 0.3 * (x_ball - ax)
     x_s1 = x_ball + 0.45 * (x_toe - x_ball)
     prof_side = [(x_s0, 0.9 * r_side), (x_ball, r_side), (x_s1, 0.65 * r_side)]
-    for xx in stations(x_s0, x_s1, lambda q: interp(q, prof_side), 0.9):
+    for xx in stations(x_s0, x_s1, lambda q: interp(q, prof_side), 1.3):
         rr = interp(xx, prof_side)
         wy = y_side * (0.8 + 0.2 * min(1.0, (xx - x_s0) / (x_ball - x_s0)))
         ft.add_world([xx, ay + wy, rr], rr)
         ft.add_world([xx, ay - wy, rr], rr)
 
     # ----- mirror the left limbs onto the right -----
-    for lname in ("left_pelvis", "left_clavicle", "left_upper_arm", "left_forearm",
-                  "left_hand", "left_thigh", "left_shank", "left_foot"):
+    for lname in (
+        "left_pelvis",
+        "left_clavicle",
+        "left_upper_arm",
+        "left_forearm",
+        "left_hand",
+        "left_thigh",
+        "left_shank",
+        "left_foot",
+    ):
         L = seg[lname]
         Rs = seg["right_" + lname[5:]]
         for sp in L.spheres:
             o = sp["origin"]
             new = {"origin": [o[0], rnd(-o[1], MM), o[2]], "radius": sp["radius"]}
             if "features" in sp:
-                new["features"] = [{"name": f["name"], "direction":
-                                    [f["direction"][0], rnd(-f["direction"][1], UNIT),
-                                     f["direction"][2]]} for f in sp["features"]]
+                new["features"] = [
+                    {
+                        "name": f["name"],
+                        "direction": [
+                            f["direction"][0],
+                            rnd(-f["direction"][1], UNIT),
+                            f["direction"][2],
+                        ],
+                    }
+                    for f in sp["features"]
+                ]
             Rs.spheres.append(new)
 
     # ---------------- masses and centroids ----------------------------------------------
     frac = {k: DELEVA[k][sex][1] / 100.0 for k in DELEVA}
-    total_frac = (frac["head_VERT_CERV"] + frac["upper_trunk_CERV_XYPH"]
-                  + frac["middle_trunk_XYPH_OMPH"] + frac["lower_trunk_OMPH_MIDH"]
-                  + 2 * sum(frac[k] for k in ("upper_arm_SJC_EJC", "forearm_EJC_WJC",
-                                              "hand_WJC_DAC3", "thigh_HJC_KJC",
-                                              "shank_KJC_LMAL", "foot_HEEL_TTIP")))
+    total_frac = (
+        frac["head_VERT_CERV"]
+        + frac["upper_trunk_CERV_XYPH"]
+        + frac["middle_trunk_XYPH_OMPH"]
+        + frac["lower_trunk_OMPH_MIDH"]
+        + 2
+        * sum(
+            frac[k]
+            for k in (
+                "upper_arm_SJC_EJC",
+                "forearm_EJC_WJC",
+                "hand_WJC_DAC3",
+                "thigh_HJC_KJC",
+                "shank_KJC_LMAL",
+                "foot_HEEL_TTIP",
+            )
+        )
+    )
     M = {k: mass_total * f / total_frac for k, f in frac.items()}  # normalised to sum 100 %
     mass: dict[str, float] = {}
     centroid: dict[str, np.ndarray] = {}
     src: dict[str, str] = {}
-    norm_note = "" if abs(total_frac - 1) < 1e-12 else (
-        f" (de Leva fractions sum to {100 * total_frac:.2f} %, normalised to 100 %)")
+    norm_note = (
+        ""
+        if abs(total_frac - 1) < 1e-12
+        else (f" (de Leva fractions sum to {100 * total_frac:.2f} %, normalised to 100 %)")
+    )
 
     def split(row: str, names: list[str]) -> None:
         vols = {n: seg[n].volume() for n in names}
@@ -802,51 +860,63 @@ def build(variant: str, sex: str) -> dict:
         for n in names:
             mass[n] = M[row] * vols[n] / vt
             centroid[n] = seg[n].volume_centroid()
-            src[n] = (f"mass: {DELEVA_LABEL[row]} ({DELEVA[row][sex][1]} % of body mass, "
-                      f"{sex}) split over {', '.join(names)} by sphere volume{norm_note}; "
-                      "centroid: sphere-volume centroid")
+            src[n] = (
+                f"mass: {DELEVA_LABEL[row]} ({DELEVA[row][sex][1]} % of body mass, "
+                f"{sex}) split over {', '.join(names)} by sphere volume{norm_note}; "
+                "centroid: sphere-volume centroid"
+            )
 
     split("upper_trunk_CERV_XYPH", VERTEBRAE[:9] + ["left_clavicle", "right_clavicle"])
     split("middle_trunk_XYPH_OMPH", VERTEBRAE[9:15])
     split("lower_trunk_OMPH_MIDH", ["L4", "L5", "pelvis", "left_pelvis", "right_pelvis"])
 
-    # head + neck: VERT-CERV row split by sphere volume; the combined centre of mass is de
-    # Leva's (cm % from the vertex along vertex -> C7-T1), the neck's centroid is its
-    # sphere-volume centroid, and the head's centroid completes the combined one.
+    # head + neck: VERT-CERV row split by sphere volume; the head's centroid is de Leva's CM
+    # (cm % of the vertex -> C7-T1 distance from the vertex, on that line), the neck's
+    # centroid is its sphere-volume centroid.
     row = "head_VERT_CERV"
     vh, vn = seg["head"].volume(), seg["neck"].volume()
     mass["head"] = M[row] * vh / (vh + vn)
     mass["neck"] = M[row] * vn / (vh + vn)
     centroid["neck"] = seg["neck"].volume_centroid()
     cm = DELEVA[row][sex][2] / 100.0
-    P = J["vertex"] + cm * (J["C7_T1"] - J["vertex"])
-    c_neck_w = seg["neck"].world(centroid["neck"])
-    c_head_w = (M[row] * P - mass["neck"] * c_neck_w) / mass["head"]
-    centroid["head"] = seg["head"].local(c_head_w)
-    src["head"] = (f"mass: {DELEVA_LABEL[row]} ({DELEVA[row][sex][1]} %, {sex}) split with "
-                   f"the neck by sphere volume{norm_note}; centroid: chosen so that head+neck "
-                   f"have de Leva's CM ({DELEVA[row][sex][2]} % from the vertex toward C7-T1)")
-    src["neck"] = (f"mass: {DELEVA_LABEL[row]} ({DELEVA[row][sex][1]} %, {sex}) split with "
-                   f"the head by sphere volume{norm_note}; centroid: sphere-volume centroid")
+    centroid["head"] = seg["head"].local(J["vertex"] + cm * (J["C7_T1"] - J["vertex"]))
+    src["head"] = (
+        f"mass: {DELEVA_LABEL[row]} ({DELEVA[row][sex][1]} %, {sex}) split with "
+        f"the neck by sphere volume{norm_note}; centroid: de Leva CM "
+        f"({DELEVA[row][sex][2]} % from the vertex on the vertex-C7_T1 line)"
+    )
+    src["neck"] = (
+        f"mass: {DELEVA_LABEL[row]} ({DELEVA[row][sex][1]} %, {sex}) split with "
+        f"the head by sphere volume{norm_note}; centroid: sphere-volume centroid"
+    )
 
-    limb_rows = {"upper_arm": "upper_arm_SJC_EJC", "forearm": "forearm_EJC_WJC",
-                 "hand": "hand_WJC_DAC3", "thigh": "thigh_HJC_KJC", "shank": "shank_KJC_LMAL"}
+    limb_rows = {
+        "upper_arm": "upper_arm_SJC_EJC",
+        "forearm": "forearm_EJC_WJC",
+        "hand": "hand_WJC_DAC3",
+        "thigh": "thigh_HJC_KJC",
+        "shank": "shank_KJC_LMAL",
+    }
     for side in ("left", "right"):
         for part, row in limb_rows.items():
             n = f"{side}_{part}"
             mass[n] = M[row]
             centroid[n] = np.array([0.0, 0.0, DELEVA[row][sex][2] / 100.0 * seg[n].length])
-            src[n] = (f"mass and centroid: {DELEVA_LABEL[row]} ({DELEVA[row][sex][1]} %, CM "
-                      f"{DELEVA[row][sex][2]} % from the proximal joint, {sex}){norm_note}")
+            src[n] = (
+                f"mass and centroid: {DELEVA_LABEL[row]} ({DELEVA[row][sex][1]} %, CM "
+                f"{DELEVA[row][sex][2]} % from the proximal joint, {sex}){norm_note}"
+            )
         n = f"{side}_foot"
         row = "foot_HEEL_TTIP"
         mass[n] = M[row]
         vc = seg[n].volume_centroid()
         zc = -0.22 * FL + DELEVA[row][sex][2] / 100.0 * FL
         centroid[n] = np.array([vc[0], 0.0, zc])
-        src[n] = (f"mass and centroid: {DELEVA_LABEL[row]} ({DELEVA[row][sex][1]} %, CM "
-                  f"{DELEVA[row][sex][2]} % of heel-toe length from the heel, {sex}){norm_note}; "
-                  "heel at -0.22 footlength; centroid height: sphere-volume centroid")
+        src[n] = (
+            f"mass and centroid: {DELEVA_LABEL[row]} ({DELEVA[row][sex][1]} %, CM "
+            f"{DELEVA[row][sex][2]} % of heel-toe length from the heel, {sex}){norm_note}; "
+            "heel at -0.22 footlength; centroid height: sphere-volume centroid"
+        )
 
     # round, and put the rounding residue on the heaviest midline segment so the sum is
     # exact and left and right stay equal
@@ -865,17 +935,30 @@ def build(variant: str, sex: str) -> dict:
 
     # ---------------- joint limits ------------------------------------------------------
     for v in VERTEBRAE:
-        jb = joint_below(v)
+        jb = joints_below[v]
         fe, lb, ar = SPINE_ROM_1A[jb]
-        fl = (0.6 if v.startswith("L") else 0.5) * fe
-        seg[v].limits = box([-lb, lb], [-(fe - fl), fl], [-ar, ar], source=(
-            f"{jb.replace('_', '-')} row, representative values (F+E {fe}, LB {lb}, AR {ar}): "
-            f"{CITE_WP}, REFERENCE 1a status U; flexion share {0.6 if v.startswith('L') else 0.5:.0%} "
-            "of F+E (build_spine.py's approximation)"))
+        share = 0.6 if v.startswith("L") else 0.5
+        fl = share * fe
+        seg[v].limits = box(
+            [-lb, lb],
+            [-(fe - fl), fl],
+            [-ar, ar],
+            source=(
+                f"{jb.replace('_', '-')} row, representative values (F+E {fe}, LB {lb}, AR {ar}): "
+                f"{CITE_WP}, REFERENCE 1a status U; flexion {share:.0%} of F+E "
+                "(build_spine.py's approximation)"
+            ),
+        )
     fe, lb, ar = SPINE_ROM_C7_T1
-    seg["neck"].limits = box([-lb, lb], [-fe / 2, fe / 2], [-ar, ar], source=(
-        f"C7-T1 row, representative values (F+E {fe} split 50/50, LB {lb}, AR {ar}): "
-        f"{CITE_WP_1B}, REFERENCE 1b status S"))
+    seg["neck"].limits = box(
+        [-lb, lb],
+        [-fe / 2, fe / 2],
+        [-ar, ar],
+        source=(
+            f"C7-T1 row, representative values (F+E {fe} split 50/50, LB {lb}, AR {ar}): "
+            f"{CITE_WP_1B}, REFERENCE 1b status S"
+        ),
+    )
     seg["head"].limits = box([-45, 45], [-45, 45], [-70, 70], source=SRC_HEAD)
     for n in ("pelvis", "left_pelvis", "right_pelvis"):
         seg[n].limits = box([0, 0], [0, 0], [0, 0], source=SRC_PELVIS)
@@ -883,13 +966,16 @@ def build(variant: str, sex: str) -> dict:
     for side, sg in sides.items():
         mir = (lambda iv: [rnd(iv[0], DEG), rnd(iv[1], DEG)]) if sg > 0 else neg
         seg[f"{side}_clavicle"].limits = cone(20, [0, 0], source=SRC_CLAVICLE)
-        seg[f"{side}_upper_arm"].limits = box(mir([-30, 170]), [-62, 167], mir([-90, 70]),
-                                              swing_max=175, source=SRC_SHOULDER)
+        seg[f"{side}_upper_arm"].limits = box(
+            mir([-30, 170]), [-62, 167], mir([-90, 70]), swing_max=175, source=SRC_SHOULDER
+        )
         seg[f"{side}_forearm"].limits = hinge([0, 150], [-80, 80], source=SRC_ELBOW)
-        seg[f"{side}_hand"].limits = box(mir([-80, 70]), [-30, 20], [0, 0], swing_max=85,
-                                         source=SRC_WRIST)
-        seg[f"{side}_thigh"].limits = box(mir([-25, 45]), [-15, 125], [-45, 45],
-                                          swing_max=130, source=SRC_HIP)
+        seg[f"{side}_hand"].limits = box(
+            mir([-80, 70]), [-30, 20], [0, 0], swing_max=85, source=SRC_WRIST
+        )
+        seg[f"{side}_thigh"].limits = box(
+            mir([-25, 45]), [-15, 125], [-45, 45], swing_max=130, source=SRC_HIP
+        )
         seg[f"{side}_shank"].limits = hinge([-130, 0], [0, 0], source=SRC_KNEE)
         seg[f"{side}_foot"].limits = hinge([-50, 20], mir([-35, 25]), source=SRC_ANKLE)
         seg[f"{side}_upper_arm"].standard_orientation = f"{side}_arm"
@@ -905,19 +991,21 @@ def build(variant: str, sex: str) -> dict:
     segments = []
     for name, _, _ in order:
         s = seg[name]
-        segments.append({
-            "name": s.name,
-            "proximal": s.proximal,
-            "distal": s.distal,
-            "length": s.length,
-            "direction": s.direction,
-            "standard_orientation": s.standard_orientation,
-            "limits": s.limits,
-            "mass": s.mass,
-            "centroid": s.centroid,
-            "source": s.source,
-            "spheres": s.spheres,
-        })
+        segments.append(
+            {
+                "name": s.name,
+                "proximal": s.proximal,
+                "distal": s.distal,
+                "length": s.length,
+                "direction": s.direction,
+                "standard_orientation": s.standard_orientation,
+                "limits": s.limits,
+                "mass": s.mass,
+                "centroid": s.centroid,
+                "source": s.source,
+                "spheres": s.spheres,
+            }
+        )
     return {
         "schema": SCHEMA,
         "name": variant,
@@ -935,8 +1023,10 @@ def build(variant: str, sex: str) -> dict:
 
 def dumps(obj, indent: int = 0, width: int = 100) -> str:
     compact = json.dumps(obj, ensure_ascii=False, separators=(", ", ": "))
-    if not isinstance(obj, (dict, list)) or len(compact) + indent <= width or (
-        isinstance(obj, list) and all(isinstance(v, (int, float)) for v in obj)
+    if (
+        not isinstance(obj, (dict, list))
+        or len(compact) + indent <= width
+        or (isinstance(obj, list) and all(isinstance(v, (int, float)) for v in obj))
     ):
         return compact
     pad = " " * (indent + 2)

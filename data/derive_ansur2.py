@@ -60,8 +60,8 @@ UNITS = {"weightkg": (10.0, "kg"), "interpupillarybreadth": (10.0, "mm")}
 HEADER = (
     "# ANSUR II per-sex summary statistics (unweighted sample statistics, numpy linear "
     "percentiles).\n"
-    "# Source: Gordon CC, Blackwell CL, Bradtmiller B, et al., 2014, \"2012 Anthropometric "
-    "Survey of U.S. Army Personnel: Methods and Summary Statistics\", NATICK/TR-15/007; "
+    '# Source: Gordon CC, Blackwell CL, Bradtmiller B, et al., 2014, "2012 Anthropometric '
+    'Survey of U.S. Army Personnel: Methods and Summary Statistics", NATICK/TR-15/007; '
     "public data release (ANSUR_II_MALE_Public.csv, ANSUR_II_FEMALE_Public.csv).\n"
     "# Derived by data/derive_ansur2.py. Units: mm; weightkg in kg (file: 0.1 kg); "
     "interpupillarybreadth in mm (file: 0.1 mm). sd has ddof=1.\n"

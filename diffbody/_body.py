@@ -158,22 +158,36 @@ class Body(eqx.Module):
         which part of the body stays put when the angles change. E.g. with root
         "left_toe_tip", bending the left ankle tilts the whole body over a planted left foot.
         """
-        from ._kinematics import forward
-
         j = self.joint_index(joint)
         if j == CENTER_OF_GRAVITY_INDEX:
             raise ValueError(
                 f"with_root: {joint!r} is the translating joint of the whole body; "
                 "choose a joint of the body tree"
             )
-        base = eqx.tree_at(lambda b: b.root_joint, self, self.default_root_joint)
-        fk = forward(base, base.rest_pose())
+        p, _ = rest_geometry(self)
         seg = self.distal_joint.index(j)
         return eqx.tree_at(
             lambda b: (b.root_joint, b.rest_position, b.R_world_pin_rest),
             self,
-            (j, fk.joint_positions[j], fk.R_world_twisted[seg]),
+            (j, jnp.asarray(p[j]), self.R_socket_rest[seg]),
         )
+
+
+def rest_geometry(body: Body) -> tuple[np.ndarray, np.ndarray]:
+    """Joint positions and sphere centres (NumPy, world) of the standard position, the root
+    joint at `body.rest_position`: every frame is the standard cross of axes, so no
+    kinematics is needed."""
+    R = np.asarray(body.R_socket_rest)
+    L = np.asarray(body.lengths)
+    p = np.zeros((body.n_joints, 3))
+    for i in range(body.n_segments):  # breadth first: proximal joints come first
+        p[body.distal_joint[i]] = p[body.proximal_joint[i]] + L[i] * R[i][:, 2]
+    p += np.asarray(body.rest_position) - p[body.root_joint]
+    seg = np.asarray(body.sphere_segment, dtype=int)
+    centers = p[np.asarray(body.proximal_joint)[seg]] + np.einsum(
+        "kij,kj->ki", R[seg], np.asarray(body.sphere_origins)
+    )
+    return p, centers
 
 
 CENTER_OF_GRAVITY_INDEX = 0

@@ -11,7 +11,7 @@ from jaxtyping import Array, Float
 
 from ._body import PHI, TAU, THETA, Body, Pose
 from ._orientation import azimuth_polar_to_vector, orientation_matrix, standard_twist
-from ._rotations import rot_z, swing_rotation
+from ._rotations import matmul3, matvec3, rotate_about_z, swing_rotation, twist_about_z
 
 
 class Kinematics(eqx.Module):
@@ -43,11 +43,11 @@ def socket_frames(
     theta, phi = angles[:, THETA], angles[:, PHI]
     d = azimuth_polar_to_vector(theta, phi)
     R_rest = body.R_socket_rest[idx]
-    R = swing_rotation(R_rest[:, :, 2], d) @ R_rest
+    R = matmul3(swing_rotation(R_rest[:, :, 2], d), R_rest)
     for limb in sorted(set(kinds) - {"swing"}):
-        mask = np.asarray([k == limb for k in kinds])
-        R_limb = orientation_matrix(theta, phi, standard_twist(theta, phi, limb))
-        R = jnp.where(mask[:, None, None], R_limb, R)
+        k = np.flatnonzero([kind == limb for kind in kinds])
+        t, p = theta[k], phi[k]
+        R = R.at[k].set(orientation_matrix(t, p, standard_twist(t, p, limb)))
     return R
 
 
@@ -77,56 +77,55 @@ def forward(body: Body, pose: Pose) -> Kinematics:
     """
     angles = jnp.asarray(pose.angles)
     tau = angles[:, TAU]
-    R_twist = rot_z(tau)
-    R_parent_base = body.R_parent_socket @ socket_frames(body, angles)
-    n = body.n_segments
-    dtype = R_parent_base.dtype
-    R_base = jnp.zeros((n, 3, 3), dtype)
-    R_twisted = jnp.zeros((n, 3, 3), dtype)
-    p_prox = jnp.zeros((n, 3), dtype)
-    p_dist = jnp.zeros((n, 3), dtype)
+    R_parent_base = matmul3(body.R_parent_socket, socket_frames(body, angles))
+    position = jnp.asarray(pose.position, R_parent_base.dtype)
+    # Segments are stored breadth first, so each level is a contiguous block whose parents
+    # all lie in the block before: compose block by block, no scatter into full arrays.
     parents = np.asarray(body.parent)
+    R_base, R_twisted, p_prox, p_dist = [], [], [], []
+    start_prev = 0
     for level in body.levels:
-        idx = np.asarray(level)
-        par = parents[idx]
-        if par[0] < 0:  # the whole body hangs from the environment
-            R_up = jnp.broadcast_to(jnp.eye(3, dtype=dtype), (len(idx), 3, 3))
-            p_up = jnp.broadcast_to(jnp.asarray(pose.position, dtype), (len(idx), 3))
+        lo, hi = level[0], level[-1] + 1
+        if parents[lo] < 0:  # the whole body hangs from the environment
+            R_b = R_parent_base[lo:hi]
+            p_up = jnp.broadcast_to(position, (hi - lo, 3))
         else:
-            R_up, p_up = R_twisted[par], p_dist[par]
-        Rb = R_up @ R_parent_base[idx]
-        R_base = R_base.at[idx].set(Rb)
-        R_twisted = R_twisted.at[idx].set(Rb @ R_twist[idx])
-        p_prox = p_prox.at[idx].set(p_up)
-        p_dist = p_dist.at[idx].set(p_up + Rb[:, :, 2] * body.lengths[idx, None])
+            up = parents[lo:hi] - start_prev
+            R_b = matmul3(R_twisted[-1][up], R_parent_base[lo:hi])
+            p_up = p_dist[-1][up]
+        R_base.append(R_b)
+        R_twisted.append(twist_about_z(R_b, tau[lo:hi]))
+        p_prox.append(p_up)
+        p_dist.append(p_up + R_b[:, :, 2] * body.lengths[lo:hi, None])
+        start_prev = lo
+    R_base, R_twisted = jnp.concatenate(R_base), jnp.concatenate(R_twisted)
+    p_prox, p_dist = jnp.concatenate(p_prox), jnp.concatenate(p_dist)
 
     if body.root_joint != body.default_root_joint:
         # Re-rooted body: pin the frame ending at the root joint to the whole body's
         # orientation and put the root joint at `position` (see Body.with_root).
         seg = body.distal_joint.index(body.root_joint)
         Rc = R_twisted[0] @ body.R_world_pin_rest @ R_twisted[seg].T
-        offset = pose.position - Rc @ p_dist[seg]
-        R_base, R_twisted = Rc @ R_base, Rc @ R_twisted
+        offset = position - Rc @ p_dist[seg]
+        R_base, R_twisted = matmul3(Rc, R_base), matmul3(Rc, R_twisted)
         p_prox = p_prox @ Rc.T + offset
         p_dist = p_dist @ Rc.T + offset
 
     joint_positions = jnp.concatenate([p_prox[:1], p_dist], axis=0)
 
-    def on_segment(seg: np.ndarray, local: Array) -> tuple[Array, Array]:
-        """Frames (twist propagated) and origins for points at `local` on segments `seg`."""
-        frac = twist_fraction(local[:, 2], body.lengths[seg])
-        R = R_base[seg] @ rot_z(tau[seg] * frac)
-        return R, p_prox[seg]
+    def place(seg: np.ndarray, local: Array, z: Array) -> Array:
+        """Local vectors on segments `seg`, at heights z, turned by their share of the twist."""
+        turned = rotate_about_z(local, tau[seg] * twist_fraction(z, body.lengths[seg]))
+        return matvec3(R_base[seg], turned)
 
     sph_seg = np.asarray(body.sphere_segment, dtype=int)
-    R_s, p_s = on_segment(sph_seg, body.sphere_origins)
-    centers = p_s + jnp.einsum("kij,kj->ki", R_s, body.sphere_origins)
+    origins = body.sphere_origins
+    centers = p_prox[sph_seg] + place(sph_seg, origins, origins[:, 2])
     f_sph = np.asarray(body.feature_sphere, dtype=int)
-    normals = jnp.einsum("kij,kj->ki", R_s[f_sph], body.feature_directions)
+    normals = place(sph_seg[f_sph], body.feature_directions, origins[f_sph, 2])
     features = centers[f_sph] + body.sphere_radii[f_sph, None] * normals
-    all_seg = np.arange(n)
-    R_c, p_c = on_segment(all_seg, body.centroids)
-    centroids = p_c + jnp.einsum("kij,kj->ki", R_c, body.centroids)
+    all_seg = np.arange(body.n_segments)
+    centroids = p_prox + place(all_seg, body.centroids, body.centroids[:, 2])
     total = jnp.sum(body.masses)
     cog = jnp.sum(body.masses[:, None] * centroids, axis=0) / jnp.where(total > 0, total, 1.0)
     return Kinematics(

@@ -9,7 +9,7 @@ Limits (data/SCHEMA.md) are a box on w intersected with a cone |w| <= swing_max,
 """
 
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from ._body import PHI, TAU, THETA, Body, Pose
 from ._orientation import azimuth_polar_to_vector, vector_to_azimuth_polar
@@ -89,6 +89,6 @@ def stop_violation(body: Body, pose: Pose) -> Float[Array, "n_seg 7"]:
     )
 
 
-def within_limits(body: Body, pose: Pose, tol: float = 1e-9) -> Float[Array, " n_seg"]:
+def within_limits(body: Body, pose: Pose, tol: float = 1e-9) -> Bool[Array, " n_seg"]:
     """Per segment: True where the pose is admissible (every violation <= tol)."""
     return jnp.all(stop_violation(body, pose) <= tol, axis=-1)

@@ -15,7 +15,7 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from ._body import CENTER_OF_GRAVITY, WHOLE_BODY, Body
+from ._body import CENTER_OF_GRAVITY, WHOLE_BODY, Body, rest_geometry
 from ._orientation import LIMBS
 from ._rotations import cross_of_axes
 
@@ -410,8 +410,7 @@ def _stand_on_ground(body: Body) -> Body:
     above the world origin."""
     import equinox as eqx
 
-    from ._kinematics import forward
-
-    fk = forward(body, body.rest_pose())
-    lowest = float(jnp.min(fk.sphere_centers[:, 2] - fk.sphere_radii)) if body.n_spheres else 0.0
+    _, centers = rest_geometry(body)
+    radii = np.asarray(body.sphere_radii)
+    lowest = float(np.min(centers[:, 2] - radii)) if body.n_spheres else 0.0
     return eqx.tree_at(lambda b: b.rest_position, body, jnp.asarray([0.0, 0.0, -lowest]))

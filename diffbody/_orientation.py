@@ -17,7 +17,7 @@ A segment's base frame in its socket is R = Rz(theta) Ry(phi) Rz(s(theta, phi) +
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from ._rotations import rot_y, rot_z, safe_atan2, safe_norm
+from ._rotations import matmul3, rot_y, rot_z, safe_atan2, safe_norm
 
 
 LIMBS: tuple[str, ...] = ("left_arm", "right_arm", "left_leg", "right_leg")
@@ -91,7 +91,7 @@ def orientation_matrix(
     """Rz(theta) Ry(phi) Rz(twist) (rad): seed 000's frame erected at the north pole, turned
     by theta, slid down a meridian by phi, then twisted. Its Z column is the direction
     `azimuth_polar_to_vector(theta, phi)`."""
-    return rot_z(theta) @ rot_y(phi) @ rot_z(twist)
+    return matmul3(matmul3(rot_z(theta), rot_y(phi)), rot_z(twist))
 
 
 def _left_arm_deg(theta: Array, phi: Array) -> Array:

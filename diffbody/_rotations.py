@@ -54,7 +54,7 @@ def safe_norm(v: Float[ArrayLike, "*b n"]) -> Float[Array, "*b"]:
 
 
 def safe_normalize(
-    v: Float[ArrayLike, "*b n"], fallback: Float[ArrayLike, "*b n"]
+    v: Float[ArrayLike, "*b n"], fallback: Float[ArrayLike, "*#b n"]
 ) -> Float[Array, "*b n"]:
     """v / |v|, or `fallback` where v is (numerically) zero; finite gradients everywhere."""
     v = jnp.asarray(v)
@@ -81,21 +81,67 @@ def skew(v: Float[ArrayLike, "*b 3"]) -> Float[Array, "*b 3 3"]:
     )
 
 
+def matmul3(a: Float[ArrayLike, "*b 3 3"], b: Float[ArrayLike, "*b 3 3"]) -> Float[Array, "*b 3 3"]:
+    """a @ b for stacks of 3x3 matrices, written elementwise: XLA fuses it into one loop,
+    which on CPU beats a batched dot of tiny matrices many times over."""
+    a, b = jnp.asarray(a), jnp.asarray(b)
+    return sum(a[..., :, k : k + 1] * b[..., k : k + 1, :] for k in range(3))
+
+
+def matvec3(a: Float[ArrayLike, "*b 3 3"], v: Float[ArrayLike, "*b 3"]) -> Float[Array, "*b 3"]:
+    """a @ v for stacks of 3x3 matrices and 3-vectors, elementwise (see `matmul3`)."""
+    a, v = jnp.asarray(a), jnp.asarray(v)
+    return sum(a[..., :, k] * v[..., k : k + 1] for k in range(3))
+
+
+def twist_about_z(R: Float[ArrayLike, "*b 3 3"], angle: Float[ArrayLike, "*b"]) -> Float[Array, "*b 3 3"]:
+    """R @ Rz(angle): the frame R turned about its own Z axis."""
+    R = jnp.asarray(R)
+    c, s = jnp.cos(angle)[..., None], jnp.sin(angle)[..., None]
+    x, y = R[..., :, 0], R[..., :, 1]
+    return jnp.stack([c * x + s * y, c * y - s * x, R[..., :, 2]], axis=-1)
+
+
+def rotate_about_z(v: Float[ArrayLike, "*b 3"], angle: Float[ArrayLike, "*b"]) -> Float[Array, "*b 3"]:
+    """Rz(angle) @ v."""
+    v = jnp.asarray(v)
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1], v[..., 2]], -1)
+
+
 def swing_rotation(
     a: Float[ArrayLike, "*b 3"], b: Float[ArrayLike, "*b 3"]
 ) -> Float[Array, "*b 3 3"]:
     """The smallest rotation taking unit vector a to unit vector b.
 
-    R = I + [v]x + [v]x^2 / (1 + c) with v = a x b, c = a . b: a polynomial in a and b with no
-    normalisation, smooth everywhere except at b = -a (where the smallest rotation is not
-    unique); there the denominator is kept away from zero so values stay finite.
+    Where a . b >= 0: R = c I + [v]x + v v^T / (1 + c) with v = a x b, c = a . b (Rodrigues'
+    formula with |v|^2 = 1 - c^2), a rational function with no normalisation and exact
+    derivatives at b = a. Where a . b < 0 that formula cancels badly, so R is built as the
+    turn by the polar angle of b about an axis perpendicular to the meridian from a, measured
+    in a fixed frame around a. Exactly at b = -a the smallest rotation is not unique; this
+    gives the half-turn about that frame's second axis (a proper rotation, finite gradients).
     """
     a, b = jnp.asarray(a), jnp.asarray(b)
     v = jnp.cross(a, b)
-    c = jnp.sum(a * b, axis=-1)[..., None, None]
-    k = skew(v)
-    denom = jnp.maximum(1.0 + c, jnp.sqrt(eps_for(c)))
-    return jnp.eye(3, dtype=k.dtype) + k + (k @ k) / denom
+    c = jnp.sum(a * b, axis=-1)
+    near = c >= 0.0
+    cc = c[..., None, None]
+    denom = jnp.where(near, 1.0 + c, 1.0)[..., None, None]
+    R_near = cc * jnp.eye(3, dtype=v.dtype) + skew(v) + v[..., :, None] * v[..., None, :] / denom
+    # A frame (e1, e2, a) around a, fixed by a alone.
+    e1 = jnp.cross(a, jnp.asarray([0.0, 0.0, 1.0], a.dtype))
+    e1 = jnp.where(
+        jnp.sum(e1 * e1, -1, keepdims=True) < 0.25, jnp.cross(a, jnp.asarray([1.0, 0.0, 0.0], a.dtype)), e1
+    )
+    e1 = e1 / jnp.sqrt(jnp.sum(e1 * e1, -1, keepdims=True))
+    e2 = jnp.cross(a, e1)
+    F = jnp.stack([e1, e2, a], axis=-1)
+    bl = jnp.sum(F * b[..., :, None], axis=-2)  # b in that frame
+    theta = safe_atan2(bl[..., 1], bl[..., 0])
+    polar = safe_atan2(safe_norm(bl[..., :2]), bl[..., 2])
+    local = matmul3(matmul3(rot_z(theta), rot_y(polar)), rot_z(-theta))
+    R_far = matmul3(matmul3(F, local), jnp.swapaxes(F, -1, -2))
+    return jnp.where(near[..., None, None], R_near, R_far)
 
 
 def cross_of_axes(direction) -> np.ndarray:

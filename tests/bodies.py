@@ -57,3 +57,30 @@ def mini_doc() -> dict:
 def write(doc, path) -> str:
     path.write_text(json.dumps(doc))
     return str(path)
+
+
+def random_pose(body, rng, *, within_limits=True, position=None):
+    """A random pose: inside the joint limits (swing box within the cone, twist in range), or
+    anywhere on the sphere of directions with twists in [-1, 1] rad."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    import diffbody as db
+
+    n = body.n_segments
+    if within_limits:
+        lo, hi = np.asarray(body.swing_lo), np.asarray(body.swing_hi)
+        w = lo + (hi - lo) * rng.uniform(size=(n, 2))
+        norm = np.linalg.norm(w, axis=1)
+        smax = np.asarray(body.swing_max)
+        w *= np.minimum(1.0, smax / np.maximum(norm, 1e-300))[:, None]
+        tlo, thi = np.clip(np.asarray(body.twist_lo), -np.pi, None), np.clip(np.asarray(body.twist_hi), None, np.pi)
+        tau = tlo + (thi - tlo) * rng.uniform(size=n)
+        w[0] = rng.uniform(-0.5, 0.5, size=2)  # whole body: a moderate tilt
+        angles = db.angles_from_swing(body, jnp.asarray(w), jnp.asarray(tau))
+    else:
+        angles = jnp.asarray(
+            np.stack([rng.uniform(-np.pi, np.pi, n), rng.uniform(0, np.pi, n), rng.uniform(-1, 1, n)], -1)
+        )
+    pos = body.rest_position if position is None else jnp.asarray(position)
+    return db.Pose(position=jnp.asarray(pos), angles=angles)

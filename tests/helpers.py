@@ -64,20 +64,26 @@ def axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
     return basis @ rot_z(angle) @ basis.T
 
 
-def swing_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def swing_rotation(a: np.ndarray, b: np.ndarray, antipodal_axis=None) -> np.ndarray:
     """The smallest rotation taking unit vector a to unit vector b: about a x b by the angle
-    between them; the identity when they coincide. Antipodal vectors have no unique answer:
-    there the direction of the (tiny) cross product decides, as in the limit along the
-    great circle through b; an exact zero cross product for b = -a raises."""
+    between them; the identity when they coincide.
+
+    Exactly opposite vectors have no unique answer; there the rotation is by pi about
+    `antipodal_axis` (made perpendicular to a), and without one it raises. A tiny but
+    nonzero a x b still gives its own axis (normalising keeps its direction in floating
+    point), i.e. the limit along the great circle through a and b.
+    """
     a, b = _unit(a), _unit(b)
     axis = np.cross(a, b)
     n = np.linalg.norm(axis)
-    angle = math.atan2(n, float(np.dot(a, b)))
-    if n == 0.0:
-        if np.dot(a, b) > 0:
-            return np.eye(3)
-        raise ValueError("swing_rotation: antipodal directions with no defined axis")
-    return axis_angle(axis / n, angle)
+    if n > 0.0:
+        return axis_angle(axis / n, math.atan2(n, float(np.dot(a, b))))
+    if np.dot(a, b) > 0:
+        return np.eye(3)
+    if antipodal_axis is None:
+        raise ValueError("swing_rotation: opposite directions and no axis given")
+    k = np.asarray(antipodal_axis, dtype=float)
+    return axis_angle(k - np.dot(k, a) * a, math.pi)
 
 
 def cross_of_axes(d) -> np.ndarray:
@@ -170,19 +176,38 @@ def direction(theta: float, phi: float) -> np.ndarray:
 
 
 def base_in_socket(kind: str, d_rest: np.ndarray, theta: float, phi: float) -> np.ndarray:
-    """A segment's untwisted frame in its socket for direction (theta, phi)."""
+    """A segment's untwisted frame in its socket for direction (theta, phi).
+
+    Limbs: Rz(theta) Ry(phi) Rz(s(theta, phi)). Other segments: the swing from the rest
+    direction, applied to the rest cross of axes. A swing exactly opposite the rest
+    direction (only reachable at a pole, e.g. a forearm at phi = 0) is taken as the limit
+    along the meridian of theta from inside [0, pi]; there the swing axis is
+    d_rest x (meridian tangent pointing into [0, pi]).
+    """
     if kind in LIMBS:
         return rot_z(theta) @ rot_y(phi) @ rot_z(standard_twist(kind, theta, phi))
-    return swing_rotation(d_rest, direction(theta, phi)) @ cross_of_axes(d_rest)
+    tangent = np.array(
+        [math.cos(phi) * math.cos(theta), math.cos(phi) * math.sin(theta), -math.sin(phi)]
+    )
+    inward = tangent if phi < math.pi / 2 else -tangent
+    S = swing_rotation(d_rest, direction(theta, phi), antipodal_axis=np.cross(d_rest, inward))
+    return S @ cross_of_axes(d_rest)
 
 
 def _segments(doc: dict) -> list[dict]:
     """The segments with the implicit whole body first, parents before children."""
     root = doc["root_joint"]
     whole = {
-        "name": WHOLE_BODY, "proximal": None, "distal": root, "length": 0.0,
-        "direction": [0.0, 0.0, 1.0], "standard_orientation": "swing", "mass": 0.0,
-        "centroid": [0.0, 0.0, 0.0], "spheres": [], "parent": None,
+        "name": WHOLE_BODY,
+        "proximal": None,
+        "distal": root,
+        "length": 0.0,
+        "direction": [0.0, 0.0, 1.0],
+        "standard_orientation": "swing",
+        "mass": 0.0,
+        "centroid": [0.0, 0.0, 0.0],
+        "spheres": [],
+        "parent": None,
     }
     ordered = [whole]
     by_proximal: dict[str, list[dict]] = {}
@@ -253,7 +278,8 @@ def reference_forward(doc: dict, position, angles_by_segment: dict) -> dict:
             radius = float(sph["radius"])
             spheres.append((name, k, centre, radius))
             for feat in sph.get("features", []):
-                features[f"{name}.{feat['name']}"] = centre + radius * (R @ _unit(feat["direction"]))
+                normal = R @ _unit(feat["direction"])
+                features[f"{name}.{feat['name']}"] = centre + radius * normal
         mass = float(seg["mass"])
         if mass > 0:
             c, _ = place(seg["centroid"])

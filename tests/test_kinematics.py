@@ -1,0 +1,249 @@
+"""Forward kinematics: the standard position, twist propagation, derivatives, symmetry."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from bodies import random_pose
+
+import diffbody as db
+
+ANSUR_STATURE = {"male50": 1.755, "female50": 1.626}  # m, ANSUR II medians
+
+
+def stature(fk):
+    return float(jnp.max(fk.sphere_centers[:, 2] + fk.sphere_radii))
+
+
+@pytest.mark.parametrize("variant", ["male50", "female50"])
+def test_rest_pose_stands_on_the_ground_with_its_stature(variant):
+    body = db.load_body(variant=variant)
+    fk = db.forward(body, body.rest_pose())
+    lowest = float(jnp.min(fk.sphere_centers[:, 2] - fk.sphere_radii))
+    assert abs(lowest) < 1e-12
+    assert abs(stature(fk) / ANSUR_STATURE[variant] - 1) < 0.02
+    # The root joint stands above the world origin; the body faces +X.
+    root = fk.joint_positions[body.default_root_joint]
+    np.testing.assert_allclose(root[:2], 0.0, atol=1e-12)
+    nose = fk.feature_points[body.feature_index("head.nose")]
+    assert nose[0] > fk.joint_positions[body.joint_index("vertex")][0] + 0.05
+    # Both soles touch the ground; palms face the thighs.
+    for side, s in (("left", -1), ("right", 1)):
+        assert abs(float(fk.feature_points[body.feature_index(f"{side}_foot.sole")][2])) < 2e-3
+        palm = fk.feature_normals[body.feature_index(f"{side}_hand.palm")]
+        assert s * float(palm[1]) > 0.9
+
+
+def test_standard_position_frames_are_the_cross_of_axes(male50, fk_male50):
+    fk = fk_male50(male50.rest_pose())
+    np.testing.assert_allclose(fk.R_world_base, male50.R_socket_rest, atol=1e-12)
+    np.testing.assert_allclose(fk.R_world_twisted, male50.R_socket_rest, atol=1e-12)
+    arm = male50.segment_index("left_upper_arm")
+    np.testing.assert_allclose(fk.R_world_base[arm], np.diag([1.0, -1.0, -1.0]), atol=1e-12)
+
+
+def test_rest_pose_is_within_limits(male50):
+    assert bool(jnp.all(db.within_limits(male50, male50.rest_pose())))
+    assert float(jnp.max(db.stop_violation(male50, male50.rest_pose()))) <= 1e-12
+
+
+def test_center_of_gravity_of_the_standard_position(male50, fk_male50):
+    fk = fk_male50(male50.rest_pose())
+    cog = np.asarray(fk.center_of_gravity)
+    assert abs(cog[1]) < 1e-9  # left-right symmetry
+    assert 0.53 < cog[2] / stature(fk) < 0.60  # the usual 55-57 % of stature
+    np.testing.assert_allclose(
+        cog, np.sum(np.asarray(male50.masses)[:, None] * np.asarray(fk.centroids), 0) / 84.6, atol=1e-4
+    )
+
+
+# --- twist propagation (seed 000, Fig. 7 as corrected) --------------------------------------
+
+
+def _local(fk, body, seg):
+    """Sphere centres of a segment in its untwisted cross of axes."""
+    k = body.segment_spheres(body.segment_names[seg])
+    p0 = fk.joint_positions[body.proximal_joint[seg]]
+    return (fk.sphere_centers[k] - p0) @ fk.R_world_base[seg]
+
+
+def test_zero_twist_leaves_spheres_where_they_are(male50, fk_male50):
+    pose = random_pose(male50, np.random.default_rng(0))
+    pose = eqx.tree_at(lambda p: p.angles, pose, pose.angles.at[:, 2].set(0.0))
+    fk = fk_male50(pose)
+    for name in ("left_forearm", "head", "T7", "right_thigh"):
+        i = male50.segment_index(name)
+        np.testing.assert_allclose(
+            _local(fk, male50, i), male50.sphere_origins[male50.segment_spheres(name)], atol=1e-12
+        )
+
+
+def test_twist_turns_distal_sphere_fully_and_proximal_not_at_all(male50, fk_male50):
+    i = male50.segment_index("left_forearm")
+    L = float(male50.lengths[i])
+    k = male50.segment_spheres("left_forearm")
+    origins = male50.sphere_origins.at[k[0]].set(jnp.array([0.03, 0.0, 0.0]))
+    origins = origins.at[k[1]].set(jnp.array([0.03, 0.0, L])).at[k[2]].set(jnp.array([0.03, 0.0, L / 2]))
+    body = eqx.tree_at(lambda b: b.sphere_origins, male50, origins)
+    tau = 0.7
+    pose = body.rest_pose()
+    pose = eqx.tree_at(lambda p: p.angles, pose, pose.angles.at[i, 2].set(tau))
+    local = np.asarray(_local(db.forward(body, pose), body, i))
+    angle = np.arctan2(local[:3, 1], local[:3, 0])
+    np.testing.assert_allclose(angle, [0.0, tau, tau / 2], atol=1e-12)
+    # The children hang from the frame turned by the full twist.
+    fk = db.forward(body, pose)
+    np.testing.assert_allclose(
+        fk.R_world_twisted[i], fk.R_world_base[i] @ np.asarray(db.orientation_matrix(0.0, 0.0, tau)),
+        atol=1e-12,
+    )
+
+
+# --- batching and derivatives ---------------------------------------------------------------
+
+
+def test_vmap_equals_a_loop(male50, fk_male50):
+    rng = np.random.default_rng(1)
+    poses = [random_pose(male50, rng, within_limits=False) for _ in range(4)]
+    batch = jax.tree.map(lambda *x: jnp.stack(x), *poses)
+    out = jax.jit(jax.vmap(lambda p: db.forward(male50, p)))(batch)
+    for j, p in enumerate(poses):
+        one = fk_male50(p)
+        np.testing.assert_allclose(out.sphere_centers[j], one.sphere_centers, atol=1e-13)
+        np.testing.assert_allclose(out.center_of_gravity[j], one.center_of_gravity, atol=1e-13)
+
+
+def _summary(body, angles, position):
+    fk = db.forward(body, db.Pose(position=position, angles=angles))
+    return jnp.concatenate(
+        [fk.joint_positions.ravel(), fk.feature_points.ravel(), fk.center_of_gravity]
+    )
+
+
+def _fd(f, x, h=1e-6):
+    x = np.asarray(x, dtype=float)
+    cols = []
+    for k in range(x.size):
+        e = np.zeros(x.size)
+        e[k] = h
+        cols.append((np.asarray(f(x + e.reshape(x.shape))) - np.asarray(f(x - e.reshape(x.shape)))) / (2 * h))
+    return np.stack(cols, axis=-1)
+
+
+def test_jacobians_agree_with_finite_differences(male50):
+    pose = random_pose(male50, np.random.default_rng(2))
+    # Limbs off their poles so (theta, phi) is a smooth chart; derivatives in all angles.
+    f = jax.jit(lambda a: _summary(male50, a, pose.position))
+    x = pose.angles.at[:, 1].set(jnp.clip(pose.angles[:, 1], 0.2, np.pi - 0.2))
+    jf = jax.jit(jax.jacfwd(f))(x).reshape(-1, x.size)
+    jr = jax.jit(jax.jacrev(f))(x).reshape(-1, x.size)
+    np.testing.assert_allclose(jf, jr, atol=1e-12)
+    cols = np.random.default_rng(3).choice(x.size, 12, replace=False)
+
+    def f_cols(v):
+        return f(x.ravel().at[cols].set(v).reshape(x.shape))
+
+    np.testing.assert_allclose(_fd(f_cols, x.ravel()[cols]), jf[:, cols], atol=1e-7)
+
+
+def test_derivatives_with_respect_to_dimensions(male50):
+    pose = random_pose(male50, np.random.default_rng(4))
+
+    def f(lengths, origins, radii):
+        body = eqx.tree_at(lambda b: (b.lengths, b.sphere_origins, b.sphere_radii), male50,
+                           (lengths, origins, radii))
+        return _summary(body, pose.angles, pose.position)
+
+    args = (male50.lengths, male50.sphere_origins, male50.sphere_radii)
+    jf = jax.jit(jax.jacfwd(f, argnums=0))(*args)
+    jr = jax.jit(jax.jacrev(f, argnums=0))(*args)
+    np.testing.assert_allclose(jf, jr, atol=1e-12)
+    # Looser than for angles: spheres exactly at a segment end sit on the kink of the
+    # clipped twist share z / length, where central differences average two slopes.
+    np.testing.assert_allclose(
+        _fd(lambda L: f(jnp.asarray(L), *args[1:]), np.asarray(args[0])), jf, atol=1e-6
+    )
+    # A longer forearm moves the wrist along the forearm's axis by exactly that much.
+    fk = db.forward(male50, pose)
+    i = male50.segment_index("left_forearm")
+    wrist = 3 * male50.joint_index("left_wrist")
+    np.testing.assert_allclose(jf[wrist:wrist + 3, i], fk.R_world_base[i][:, 2], atol=1e-12)
+    g = jax.grad(lambda r: jnp.sum(f(args[0], args[1], r)))(args[2])
+    assert np.all(np.isfinite(g))
+
+
+def test_gradients_finite_exactly_at_the_poles(male50):
+    n = male50.n_segments
+    for phi in (0.0, np.pi):
+        angles = jnp.stack([jnp.full(n, 0.3), jnp.full(n, phi), jnp.zeros(n)], -1)
+        g = jax.grad(lambda a: jnp.sum(_summary(male50, a, male50.rest_position) ** 2))(angles)
+        assert np.all(np.isfinite(g))
+    # The rest pose holds the limbs exactly at their socket poles.
+    rest = male50.rest_pose()
+    g = jax.grad(lambda a: jnp.sum(_summary(male50, a, rest.position) ** 2))(rest.angles)
+    assert np.all(np.isfinite(g))
+    g = jax.grad(lambda a: jnp.sum(db.stop_violation(male50, db.Pose(rest.position, a))))(rest.angles)
+    assert np.all(np.isfinite(g))
+
+
+def test_float32_follows_float64(male50):
+    pose = random_pose(male50, np.random.default_rng(5))
+    to32 = lambda t: jax.tree.map(  # noqa: E731
+        lambda x: x.astype(jnp.float32) if eqx.is_inexact_array(x) else x, t
+    )
+    fk32 = db.forward(to32(male50), to32(pose))
+    fk64 = db.forward(male50, pose)
+    assert fk32.sphere_centers.dtype == jnp.float32
+    np.testing.assert_allclose(fk32.sphere_centers, fk64.sphere_centers, atol=2e-5)
+    np.testing.assert_allclose(fk32.center_of_gravity, fk64.center_of_gravity, atol=2e-5)
+
+
+# --- symmetry and re-rooting ----------------------------------------------------------------
+
+
+def _mirror_name(name):
+    if name.startswith("left_"):
+        return "right_" + name[5:]
+    if name.startswith("right_"):
+        return "left_" + name[6:]
+    return name.replace("left_eye", "@").replace("right_eye", "left_eye").replace("@", "right_eye")
+
+
+def test_left_right_mirror_symmetry(male50, fk_male50):
+    """Mirroring a pose (theta -> -theta, tau -> -tau, left <-> right) mirrors the body."""
+    pose = random_pose(male50, np.random.default_rng(6))
+    perm = [male50.segment_index(_mirror_name(s)) for s in male50.segment_names]
+    mirrored = pose.angles[np.asarray(perm)] * jnp.array([-1.0, 1.0, -1.0])
+    M = np.diag([1.0, -1.0, 1.0])
+    fk = fk_male50(pose)
+    fk_m = fk_male50(db.Pose(pose.position * jnp.array([1.0, -1.0, 1.0]), mirrored))
+    jperm = [male50.joint_index(_mirror_name(j)) for j in male50.joint_names]
+    np.testing.assert_allclose(fk_m.joint_positions[np.asarray(jperm)], fk.joint_positions @ M, atol=1e-12)
+    fperm = [male50.feature_index(".".join(map(_mirror_name, f.split(".")))) for f in male50.feature_names]
+    np.testing.assert_allclose(fk_m.feature_points[np.asarray(fperm)], fk.feature_points @ M, atol=1e-12)
+    np.testing.assert_allclose(fk_m.center_of_gravity, fk.center_of_gravity @ M, atol=1e-12)
+
+
+def test_any_joint_as_root(male50):
+    planted = male50.with_root("left_toe_tip")
+    rest = planted.rest_pose()
+    np.testing.assert_allclose(
+        db.forward(planted, rest).sphere_centers, db.forward(male50, male50.rest_pose()).sphere_centers,
+        atol=1e-12,
+    )
+    foot = planted.segment_spheres("left_foot")
+    pelvis = planted.segment_spheres("pelvis")
+    ankle = planted.segment_index("left_foot")
+    bent = eqx.tree_at(lambda p: p.angles, rest, rest.angles.at[ankle].set(
+        db.angles_from_swing(planted, jnp.zeros((planted.n_segments, 2)).at[ankle, 1].set(0.3),
+                             jnp.zeros(planted.n_segments))[ankle]))
+    a, b = db.forward(planted, rest), db.forward(planted, bent)
+    np.testing.assert_allclose(a.sphere_centers[foot], b.sphere_centers[foot], atol=1e-12)
+    assert float(jnp.max(jnp.abs(a.sphere_centers[pelvis] - b.sphere_centers[pelvis]))) > 0.05
+    # With the default root the pelvis stays and the foot moves instead.
+    a, b = db.forward(male50, rest), db.forward(male50, bent)
+    np.testing.assert_allclose(a.sphere_centers[pelvis], b.sphere_centers[pelvis], atol=1e-12)
+    assert np.asarray(b.joint_positions)[planted.joint_index("left_toe_tip")][2] > 0.03
+    with pytest.raises(KeyError, match="left_toe_tip"):
+        male50.with_root("left_toe")
