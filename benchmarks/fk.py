@@ -37,7 +37,11 @@ def machine() -> str:
 def random_angles(body, n: int, rng: np.random.Generator) -> jnp.ndarray:
     k = body.n_segments
     a = np.stack(
-        [rng.uniform(-np.pi, np.pi, (n, k)), rng.uniform(0, np.pi, (n, k)), rng.uniform(-1, 1, (n, k))],
+        [
+            rng.uniform(-np.pi, np.pi, (n, k)),
+            rng.uniform(0, np.pi, (n, k)),
+            rng.uniform(-1, 1, (n, k)),
+        ],
         axis=-1,
     )
     return jnp.asarray(a, dtype=jnp.result_type(float))
@@ -71,7 +75,9 @@ def main() -> None:
 
     body = db.load_body(args.body, variant=args.variant)
     if not args.x64:
-        body = jax.tree.map(lambda x: x.astype(jnp.float32) if isinstance(x, jax.Array) else x, body)
+        body = jax.tree.map(
+            lambda x: x.astype(jnp.float32) if isinstance(x, jax.Array) else x, body
+        )
     print(machine())
     print(f"body: {body.name}, {body.n_segments} segments, {body.n_spheres} spheres")
     outputs = {

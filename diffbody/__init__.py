@@ -1,34 +1,69 @@
 """diffbody: differentiable inverse kinematics for articulated, sphere-skinned bodies."""
 
-from ._body import Body as Body, Pose as Pose
-from ._kinematics import Kinematics as Kinematics, forward as forward
+from ._body import Body as Body
+from ._body import Pose as Pose
+from ._kinematics import Kinematics as Kinematics
+from ._kinematics import forward as forward
 from ._limits import (
     STOP_COLUMNS as STOP_COLUMNS,
+)
+from ._limits import (
     angles_from_swing as angles_from_swing,
+)
+from ._limits import (
     stop_violation as stop_violation,
+)
+from ._limits import (
     swing_vector as swing_vector,
+)
+from ._limits import (
     within_limits as within_limits,
 )
-from ._loading import BodyFileError as BodyFileError, load_body as load_body
+from ._loading import BodyFileError as BodyFileError
+from ._loading import load_body as load_body
 from ._local_frames import (
     bone_descriptors as bone_descriptors,
+)
+from ._local_frames import (
     local_frame as local_frame,
+)
+from ._local_frames import (
     local_frames as local_frames,
+)
+from ._local_frames import (
     smooth_reference as smooth_reference,
 )
 from ._orientation import (
     azimuth_polar_to_inclination_azimuth as azimuth_polar_to_inclination_azimuth,
+)
+from ._orientation import (
     azimuth_polar_to_vector as azimuth_polar_to_vector,
+)
+from ._orientation import (
     inclination_azimuth_to_azimuth_polar as inclination_azimuth_to_azimuth_polar,
+)
+from ._orientation import (
     inclination_azimuth_to_vector as inclination_azimuth_to_vector,
+)
+from ._orientation import (
     orientation_matrix as orientation_matrix,
+)
+from ._orientation import (
     standard_frame as standard_frame,
+)
+from ._orientation import (
     standard_twist as standard_twist,
+)
+from ._orientation import (
     vector_to_azimuth_polar as vector_to_azimuth_polar,
+)
+from ._orientation import (
     vector_to_inclination_azimuth as vector_to_inclination_azimuth,
 )
 from ._posture import (
     apply_standard_orientation as apply_standard_orientation,
+)
+from ._posture import (
     pose_from_joint_positions as pose_from_joint_positions,
 )
 from ._render import render as render

@@ -7,6 +7,7 @@ masses) can be differentiated, fitted and batched. The chain environment ->
 explicit: segment 0 is always "whole_body" and joint 0 always "center_of_gravity".
 """
 
+import dataclasses
 import difflib
 
 import equinox as eqx
@@ -166,10 +167,11 @@ class Body(eqx.Module):
             )
         p, _ = rest_geometry(self)
         seg = self.distal_joint.index(j)
-        return eqx.tree_at(
-            lambda b: (b.root_joint, b.rest_position, b.R_world_pin_rest),
+        return dataclasses.replace(
             self,
-            (j, jnp.asarray(p[j]), self.R_socket_rest[seg]),
+            root_joint=j,
+            rest_position=jnp.asarray(p[j]),
+            R_world_pin_rest=self.R_socket_rest[seg],
         )
 
 

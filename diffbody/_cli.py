@@ -32,8 +32,15 @@ def _render(args) -> int:
     body = _body(args)
     print(_summary(body))
     views = [v if "," not in v else tuple(float(x) for x in v.split(",")) for v in args.view]
-    path = render(body, body.rest_pose(), args.out, views, features=args.features,
-                  skeleton=args.skeleton, title=f"diffbody {body.name}: standard position")
+    path = render(
+        body,
+        body.rest_pose(),
+        args.out,
+        views,
+        features=args.features,
+        skeleton=args.skeleton,
+        title=f"diffbody {body.name}: standard position",
+    )
     print(f"wrote {path}")
     return 0
 
@@ -61,8 +68,12 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("render", help="draw the body in its standard position to a PNG")
     body_args(p)
     p.add_argument("--out", default="body.png", help="PNG to write (default body.png)")
-    p.add_argument("--view", nargs="+", default=["front", "left", "perspective"],
-                   help="views: front, back, left, right, top, perspective, or AZ,EL degrees")
+    p.add_argument(
+        "--view",
+        nargs="+",
+        default=["front", "left", "perspective"],
+        help="views: front, back, left, right, top, perspective, or AZ,EL degrees",
+    )
     p.add_argument("--features", action="store_true", help="mark the named features")
     p.add_argument("--skeleton", action="store_true", help="draw the segment axes")
     p.set_defaults(run=_render)

@@ -17,8 +17,13 @@ from ._rotations import eps_for
 
 N_STOP = 7
 STOP_COLUMNS = (
-    "swing_x above", "swing_x below", "swing_y above", "swing_y below", "cone",
-    "twist above", "twist below",
+    "swing_x above",
+    "swing_x below",
+    "swing_y above",
+    "swing_y below",
+    "cone",
+    "twist above",
+    "twist below",
 )
 
 

@@ -22,8 +22,17 @@ from ._rotations import cross_of_axes
 SCHEMA = "diffbody.body/1"
 TOP_FIELDS = {"schema", "name", "description", "sources", "root_joint", "segments"}
 SEGMENT_FIELDS = {
-    "name", "proximal", "distal", "length", "direction", "standard_orientation", "limits",
-    "mass", "centroid", "spheres", "source",
+    "name",
+    "proximal",
+    "distal",
+    "length",
+    "direction",
+    "standard_orientation",
+    "limits",
+    "mass",
+    "centroid",
+    "spheres",
+    "source",
 }
 SPHERE_FIELDS = {"origin", "radius", "features"}
 FEATURE_FIELDS = {"name", "direction"}
@@ -123,7 +132,9 @@ def _limits(where: _Where, seg: dict) -> tuple[str, list[float], list[float], fl
     kind = lim.get("kind")
     if kind not in LIMIT_FIELDS:
         raise w.fail("kind", f"must be one of {sorted(LIMIT_FIELDS)}, got {kind!r}")
-    w.fields(lim, LIMIT_FIELDS[kind] | {"kind"}, OPTIONAL_LIMIT_FIELDS.get(kind, set()) | {"source"})
+    w.fields(
+        lim, LIMIT_FIELDS[kind] | {"kind"}, OPTIONAL_LIMIT_FIELDS.get(kind, set()) | {"source"}
+    )
     if kind == "free":
         return kind, [-math.pi] * 2, [math.pi] * 2, math.pi, -math.inf, math.inf
     tlo, thi = w.range_deg(lim, "twist_deg")
@@ -187,7 +198,12 @@ def _resolve(path: str | Path | None, variant: str) -> Path:
         if (folder / name).is_file():
             return folder / name
     found = sorted(
-        {p.stem.removeprefix("body_") for f in candidates if f.is_dir() for p in f.glob("body_*.json")}
+        {
+            p.stem.removeprefix("body_")
+            for f in candidates
+            if f.is_dir()
+            for p in f.glob("body_*.json")
+        }
     )
     raise ValueError(f"load_body: unknown variant {variant!r}; available variants: {found}")
 
@@ -213,7 +229,9 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as e:
-        raise BodyFileError(f"{shown}: not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
+        raise BodyFileError(
+            f"{shown}: not valid JSON: {e.msg} at line {e.lineno} column {e.colno}"
+        ) from None
     top = _Where(shown, "top level")
     top.fields(doc, TOP_FIELDS - {"description"}, {"description"})
     if doc["schema"] != SCHEMA:
@@ -234,7 +252,17 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
         where = _Where(shown, f"segment {label!r} (segments[{k}])" if label else f"segments[{k}]")
         where.fields(
             seg,
-            {"name", "proximal", "distal", "length", "direction", "limits", "mass", "centroid", "spheres"},
+            {
+                "name",
+                "proximal",
+                "distal",
+                "length",
+                "direction",
+                "limits",
+                "mass",
+                "centroid",
+                "spheres",
+            },
             {"standard_orientation", "source"},
         )
         nm = where.string(seg, "name")
@@ -249,8 +277,9 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
         if dist in by_distal:
             other = segs[by_distal[dist]]["name"]
             raise where.fail(
-                "distal", f"joint {dist!r} is already the distal joint of segment {other!r}; "
-                "every joint ends exactly one segment"
+                "distal",
+                f"joint {dist!r} is already the distal joint of segment {other!r}; "
+                "every joint ends exactly one segment",
             )
         if dist == CENTER_OF_GRAVITY or prox == CENTER_OF_GRAVITY:
             raise where.fail("proximal", f"{CENTER_OF_GRAVITY!r} is reserved for the loader")
@@ -281,14 +310,22 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
                 fw.fields(f, FEATURE_FIELDS)
                 fname = fw.string(f, "name")
                 if fname in feature_seen or "." in fname:
-                    raise fw.fail("name", f"feature names must be unique within a segment and "
-                                  f"contain no '.', got {fname!r}")
+                    raise fw.fail(
+                        "name",
+                        f"feature names must be unique within a segment and "
+                        f"contain no '.', got {fname!r}",
+                    )
                 feature_seen.add(fname)
                 feats.append((fname, fw.vector(f, "direction", unit=True)))
             sph.append((sw.vector(s, "origin"), sw.number(s, "radius", positive=True), feats))
         parsed.append(
             dict(
-                name=nm, proximal=prox, distal=dist, std=std, direction=direction, spheres=sph,
+                name=nm,
+                proximal=prox,
+                distal=dist,
+                std=std,
+                direction=direction,
+                spheres=sph,
                 length=where.number(seg, "length", positive=True),
                 mass=where.number(seg, "mass", nonneg=True),
                 centroid=where.vector(seg, "centroid"),
@@ -313,7 +350,9 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
         k, d = queue.popleft()
         order.append(k)
         depth[k] = d
-        queue.extend((c, d + 1) for c, p in enumerate(parsed) if p["proximal"] == parsed[k]["distal"])
+        queue.extend(
+            (c, d + 1) for c, p in enumerate(parsed) if p["proximal"] == parsed[k]["distal"]
+        )
     if len(order) < len(parsed):
         k = next(k for k in range(len(parsed)) if k not in depth)
         cycle, seen = [parsed[k]["name"]], {k}
@@ -324,8 +363,9 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
                 break
             seen.add(k)
         raise _Where(shown, f"segment {cycle[0]!r}").fail(
-            "proximal", f"cycle in the tree: {' -> '.join(cycle)}; it never reaches the root "
-            f"joint {root_name!r}"
+            "proximal",
+            f"cycle in the tree: {' -> '.join(cycle)}; it never reaches the root "
+            f"joint {root_name!r}",
         )
     return _build(name, shown, root_name, [parsed[k] for k in order], [depth[k] for k in order])
 
@@ -350,7 +390,14 @@ def _build(name: str, source: str, root_name: str, segs: list[dict], depths: lis
     lim = [("free", [-math.pi] * 2, [math.pi] * 2, math.pi, -math.inf, math.inf)]
     lim += [s["limits"] for s in segs]
     big = 1e6  # "free" twist: no bound, kept finite so arithmetic stays finite
-    sphere_segment, origins, radii, feature_names, feature_sphere, feature_dirs = [], [], [], [], [], []
+    sphere_segment, origins, radii, feature_names, feature_sphere, feature_dirs = (
+        [],
+        [],
+        [],
+        [],
+        [],
+        [],
+    )
     enclosure = [(0.0, 0.0)]
     for i, s in enumerate(segs, start=1):
         first = len(radii)
@@ -362,7 +409,9 @@ def _build(name: str, source: str, root_name: str, segs: list[dict], depths: lis
             sphere_segment.append(i)
             origins.append(origin)
             radii.append(radius)
-        enclosure.append(_enclosure(np.asarray(origins[first:]).reshape(-1, 3), np.asarray(radii[first:])))
+        enclosure.append(
+            _enclosure(np.asarray(origins[first:]).reshape(-1, 3), np.asarray(radii[first:]))
+        )
 
     levels: dict[int, list[int]] = {}
     for i, d in enumerate(depths, start=1):

@@ -11,12 +11,13 @@ differentiable everywhere except exactly opposite the standard direction, which 
 limits exclude (no field of frames on the sphere is smooth everywhere).
 """
 
-import numpy as np
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._body import Body
 from ._orientation import vector_to_inclination_azimuth
+from ._posture import whole_body_rotation
 from ._rotations import safe_normalize, swing_rotation
 
 
@@ -82,13 +83,19 @@ def local_frames(
     body: Body, joint_positions: Float[ArrayLike, "n_joint 3"]
 ) -> Float[Array, "n_seg 3 3"]:
     """Seed 001 local coordinate systems of every segment from measured joint positions:
-    world frames, columns (x', y', z'), x' along the segment. The whole body's frame is the
-    world frame; each segment's reference is its parent's axis least aligned with its
-    standard direction, transported smoothly (see module docstring).
+    world frames, columns (x', y', z'), x' along the segment. Each segment's reference is
+    its parent's axis least aligned with its standard direction, transported smoothly (see
+    the module docstring).
+
+    The seed sets the root's system to the global one; diffbody uses the whole body's own
+    frame, found from the segments leaving the root joint (for the default body the pelvis
+    and hip links), so that every descriptor is independent of where the person stands and
+    faces, which is the seed's motivation. It equals the global frame in the standard
+    position.
     """
     p = jnp.asarray(joint_positions)
     bones_rest, refs_rest = (jnp.asarray(a) for a in _rest_references(body))
-    frames = jnp.zeros((body.n_segments, 3, 3), p.dtype).at[0].set(jnp.eye(3, dtype=p.dtype))
+    frames = jnp.zeros((body.n_segments, 3, 3), p.dtype).at[0].set(whole_body_rotation(body, p))
     prox, dist, par = (np.asarray(a) for a in (body.proximal_joint, body.distal_joint, body.parent))
     for level in body.levels[1:]:
         idx = np.asarray(level)
@@ -104,7 +111,7 @@ def bone_descriptors(
 ) -> Float[Array, "n_seg 3"]:
     """Seed 001's (theta, phi, r) of every segment in its parent's local coordinate system:
     theta the inclination from x' (rad), phi the azimuth in the y'-z' plane from z' (rad),
-    r the bone length (m). Row 0 (the whole body) is zero."""
+    r the bone length (m). Row 0 (the whole body, which has no bone) is zero."""
     p = jnp.asarray(joint_positions)
     frames = local_frames(body, p)
     par = np.asarray(body.parent)

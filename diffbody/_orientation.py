@@ -12,13 +12,10 @@ A segment's base frame in its socket is R = Rz(theta) Ry(phi) Rz(s(theta, phi) +
 (DESIGN section 1), where s is the standard twist of this module.
 """
 
-
-
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from ._rotations import matmul3, rot_y, rot_z, safe_atan2, safe_norm
-
 
 LIMBS: tuple[str, ...] = ("left_arm", "right_arm", "left_leg", "right_leg")
 

@@ -25,7 +25,7 @@ def _triad(a1: Array, a2: Array) -> Array:
     return jnp.stack([x, jnp.cross(z, x), z], axis=-1)
 
 
-def _whole_body_rotation(body: Body, p: Array) -> Array:
+def whole_body_rotation(body: Body, p: Array) -> Array:
     """The whole body's world rotation from the segments leaving the (default) root joint:
     the triad of the first two whose standard directions are not parallel (exact for
     consistent data), or the smallest rotation of a single one."""
@@ -77,7 +77,7 @@ def pose_from_joint_positions(
     n = body.n_segments
     tau = jnp.zeros(n, p.dtype) if deviation is None else jnp.asarray(deviation, p.dtype)
     default = body.default_root_joint
-    W = _whole_body_rotation(body, p)
+    W = whole_body_rotation(body, p)
     # The whole body's twist is its stance, fixed by the positions: no deviation applies.
     angles = jnp.zeros((n, 3), p.dtype).at[0].set(_angles_of_rotation(W))
     R_twisted = jnp.zeros((n, 3, 3), p.dtype).at[0].set(W)

@@ -42,8 +42,10 @@ def _camera(view: str | tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np
     """Unit vectors toward the camera, screen right and screen up, and a label."""
     if isinstance(view, str):
         if view not in VIEWS:
-            raise ValueError(f"render: unknown view {view!r}; use one of {sorted(VIEWS)} "
-                             "or (azimuth_deg, elevation_deg)")
+            raise ValueError(
+                f"render: unknown view {view!r}; use one of {sorted(VIEWS)} "
+                "or (azimuth_deg, elevation_deg)"
+            )
         az, el = VIEWS[view]
         label = view
     else:
@@ -56,8 +58,16 @@ def _camera(view: str | tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np
     return to_camera, right, up, label
 
 
-def draw(ax, body: Body, pose: Pose, view: str | tuple[float, float] = "front",
-         *, features: bool = False, skeleton: bool = False, ground: bool = True) -> None:
+def draw(
+    ax,
+    body: Body,
+    pose: Pose,
+    view: str | tuple[float, float] = "front",
+    *,
+    features: bool = False,
+    skeleton: bool = False,
+    ground: bool = True,
+) -> None:
     """Draw the shaded sphere body into a matplotlib Axes."""
     from matplotlib.collections import PatchCollection
     from matplotlib.patches import Circle
@@ -136,9 +146,12 @@ def render(
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    views = [view] if isinstance(view, str) or (
-        isinstance(view, tuple) and len(view) == 2 and not isinstance(view[0], (str, tuple))
-    ) else list(view)
+    views = (
+        [view]
+        if isinstance(view, str)
+        or (isinstance(view, tuple) and len(view) == 2 and not isinstance(view[0], (str, tuple)))
+        else list(view)
+    )
     fig, axes = plt.subplots(1, len(views), figsize=(3.2 * len(views), 5.2), squeeze=False)
     for ax, v in zip(axes[0], views):
         draw(ax, body, pose, v, features=features, skeleton=skeleton)

@@ -81,20 +81,24 @@ def skew(v: Float[ArrayLike, "*b 3"]) -> Float[Array, "*b 3 3"]:
     )
 
 
-def matmul3(a: Float[ArrayLike, "*b 3 3"], b: Float[ArrayLike, "*b 3 3"]) -> Float[Array, "*b 3 3"]:
+def matmul3(
+    a: Float[ArrayLike, "*#b 3 3"], b: Float[ArrayLike, "*#b 3 3"]
+) -> Float[Array, "*b 3 3"]:
     """a @ b for stacks of 3x3 matrices, written elementwise: XLA fuses it into one loop,
     which on CPU beats a batched dot of tiny matrices many times over."""
     a, b = jnp.asarray(a), jnp.asarray(b)
     return sum(a[..., :, k : k + 1] * b[..., k : k + 1, :] for k in range(3))
 
 
-def matvec3(a: Float[ArrayLike, "*b 3 3"], v: Float[ArrayLike, "*b 3"]) -> Float[Array, "*b 3"]:
+def matvec3(a: Float[ArrayLike, "*#b 3 3"], v: Float[ArrayLike, "*#b 3"]) -> Float[Array, "*b 3"]:
     """a @ v for stacks of 3x3 matrices and 3-vectors, elementwise (see `matmul3`)."""
     a, v = jnp.asarray(a), jnp.asarray(v)
     return sum(a[..., :, k] * v[..., k : k + 1] for k in range(3))
 
 
-def twist_about_z(R: Float[ArrayLike, "*b 3 3"], angle: Float[ArrayLike, "*b"]) -> Float[Array, "*b 3 3"]:
+def twist_about_z(
+    R: Float[ArrayLike, "*b 3 3"], angle: Float[ArrayLike, "*b"]
+) -> Float[Array, "*b 3 3"]:
     """R @ Rz(angle): the frame R turned about its own Z axis."""
     R = jnp.asarray(R)
     c, s = jnp.cos(angle)[..., None], jnp.sin(angle)[..., None]
@@ -102,7 +106,9 @@ def twist_about_z(R: Float[ArrayLike, "*b 3 3"], angle: Float[ArrayLike, "*b"]) 
     return jnp.stack([c * x + s * y, c * y - s * x, R[..., :, 2]], axis=-1)
 
 
-def rotate_about_z(v: Float[ArrayLike, "*b 3"], angle: Float[ArrayLike, "*b"]) -> Float[Array, "*b 3"]:
+def rotate_about_z(
+    v: Float[ArrayLike, "*b 3"], angle: Float[ArrayLike, "*b"]
+) -> Float[Array, "*b 3"]:
     """Rz(angle) @ v."""
     v = jnp.asarray(v)
     c, s = jnp.cos(angle), jnp.sin(angle)
@@ -131,7 +137,9 @@ def swing_rotation(
     # A frame (e1, e2, a) around a, fixed by a alone.
     e1 = jnp.cross(a, jnp.asarray([0.0, 0.0, 1.0], a.dtype))
     e1 = jnp.where(
-        jnp.sum(e1 * e1, -1, keepdims=True) < 0.25, jnp.cross(a, jnp.asarray([1.0, 0.0, 0.0], a.dtype)), e1
+        jnp.sum(e1 * e1, -1, keepdims=True) < 0.25,
+        jnp.cross(a, jnp.asarray([1.0, 0.0, 0.0], a.dtype)),
+        e1,
     )
     e1 = e1 / jnp.sqrt(jnp.sum(e1 * e1, -1, keepdims=True))
     e2 = jnp.cross(a, e1)

@@ -19,32 +19,80 @@ MINI = {
     "sources": ["synthetic test body"],
     "root_joint": "hip",
     "segments": [
-        {"name": "trunk", "proximal": "hip", "distal": "neck", "length": 0.5,
-         "direction": [0, 0, 1],
-         "limits": {"kind": "box", "swing_x_deg": [-30, 30], "swing_y_deg": [-20, 60],
-                    "twist_deg": [-40, 40]},
-         "mass": 30.0, "centroid": [0.02, 0, 0.25],
-         "spheres": [_sphere([0.05, 0, 0.1], 0.12), _sphere([0.05, 0, 0.35], 0.14)]},
-        {"name": "left_clavicle", "proximal": "neck", "distal": "left_shoulder", "length": 0.18,
-         "direction": [0, 1, -0.2], "limits": {"kind": "cone", "swing_max_deg": 20,
-                                               "twist_deg": [0, 0]},
-         "mass": 1.0, "centroid": [0, 0, 0.09], "spheres": [_sphere([0, 0, 0.1], 0.05)]},
-        {"name": "left_upper_arm", "proximal": "left_shoulder", "distal": "left_elbow",
-         "length": 0.3, "direction": [0, 0, -1], "standard_orientation": "left_arm",
-         "limits": {"kind": "box", "swing_x_deg": [-30, 170], "swing_y_deg": [-60, 167],
-                    "swing_max_deg": 175, "twist_deg": [-90, 70]},
-         "mass": 2.0, "centroid": [0, 0, 0.15],
-         "spheres": [_sphere([0, 0, 0.0], 0.05), _sphere([0.03, 0.02, 0.15], 0.045),
-                     _sphere([0, 0, 0.3], 0.04, [("elbow", [-1, 0, 0])])]},
-        {"name": "left_forearm", "proximal": "left_elbow", "distal": "left_wrist", "length": 0.26,
-         "direction": [0, 0, -1],
-         "limits": {"kind": "hinge", "swing_y_deg": [0, 150], "twist_deg": [-80, 80]},
-         "mass": 1.5, "centroid": [0, 0, 0.12],
-         "spheres": [_sphere([0.02, 0.01, 0.05], 0.04),
-                     _sphere([0.01, 0.02, 0.26], 0.03, [("palm", [0, 1, 0])])]},
-        {"name": "left_thigh", "proximal": "hip", "distal": "left_knee", "length": 0.42,
-         "direction": [0, 0.1, -1], "limits": FIXED, "mass": 8.0, "centroid": [0, 0, 0.2],
-         "spheres": [_sphere([0, 0, 0.2], 0.08), _sphere([0, 0, 0.42], 0.06)]},
+        {
+            "name": "trunk",
+            "proximal": "hip",
+            "distal": "neck",
+            "length": 0.5,
+            "direction": [0, 0, 1],
+            "limits": {
+                "kind": "box",
+                "swing_x_deg": [-30, 30],
+                "swing_y_deg": [-20, 60],
+                "twist_deg": [-40, 40],
+            },
+            "mass": 30.0,
+            "centroid": [0.02, 0, 0.25],
+            "spheres": [_sphere([0.05, 0, 0.1], 0.12), _sphere([0.05, 0, 0.35], 0.14)],
+        },
+        {
+            "name": "left_clavicle",
+            "proximal": "neck",
+            "distal": "left_shoulder",
+            "length": 0.18,
+            "direction": [0, 1, -0.2],
+            "limits": {"kind": "cone", "swing_max_deg": 20, "twist_deg": [0, 0]},
+            "mass": 1.0,
+            "centroid": [0, 0, 0.09],
+            "spheres": [_sphere([0, 0, 0.1], 0.05)],
+        },
+        {
+            "name": "left_upper_arm",
+            "proximal": "left_shoulder",
+            "distal": "left_elbow",
+            "length": 0.3,
+            "direction": [0, 0, -1],
+            "standard_orientation": "left_arm",
+            "limits": {
+                "kind": "box",
+                "swing_x_deg": [-30, 170],
+                "swing_y_deg": [-60, 167],
+                "swing_max_deg": 175,
+                "twist_deg": [-90, 70],
+            },
+            "mass": 2.0,
+            "centroid": [0, 0, 0.15],
+            "spheres": [
+                _sphere([0, 0, 0.0], 0.05),
+                _sphere([0.03, 0.02, 0.15], 0.045),
+                _sphere([0, 0, 0.3], 0.04, [("elbow", [-1, 0, 0])]),
+            ],
+        },
+        {
+            "name": "left_forearm",
+            "proximal": "left_elbow",
+            "distal": "left_wrist",
+            "length": 0.26,
+            "direction": [0, 0, -1],
+            "limits": {"kind": "hinge", "swing_y_deg": [0, 150], "twist_deg": [-80, 80]},
+            "mass": 1.5,
+            "centroid": [0, 0, 0.12],
+            "spheres": [
+                _sphere([0.02, 0.01, 0.05], 0.04),
+                _sphere([0.01, 0.02, 0.26], 0.03, [("palm", [0, 1, 0])]),
+            ],
+        },
+        {
+            "name": "left_thigh",
+            "proximal": "hip",
+            "distal": "left_knee",
+            "length": 0.42,
+            "direction": [0, 0.1, -1],
+            "limits": FIXED,
+            "mass": 8.0,
+            "centroid": [0, 0, 0.2],
+            "spheres": [_sphere([0, 0, 0.2], 0.08), _sphere([0, 0, 0.42], 0.06)],
+        },
     ],
 }
 
@@ -74,13 +122,18 @@ def random_pose(body, rng, *, within_limits=True, position=None):
         norm = np.linalg.norm(w, axis=1)
         smax = np.asarray(body.swing_max)
         w *= np.minimum(1.0, smax / np.maximum(norm, 1e-300))[:, None]
-        tlo, thi = np.clip(np.asarray(body.twist_lo), -np.pi, None), np.clip(np.asarray(body.twist_hi), None, np.pi)
+        tlo, thi = (
+            np.clip(np.asarray(body.twist_lo), -np.pi, None),
+            np.clip(np.asarray(body.twist_hi), None, np.pi),
+        )
         tau = tlo + (thi - tlo) * rng.uniform(size=n)
         w[0] = rng.uniform(-0.5, 0.5, size=2)  # whole body: a moderate tilt
         angles = db.angles_from_swing(body, jnp.asarray(w), jnp.asarray(tau))
     else:
         angles = jnp.asarray(
-            np.stack([rng.uniform(-np.pi, np.pi, n), rng.uniform(0, np.pi, n), rng.uniform(-1, 1, n)], -1)
+            np.stack(
+                [rng.uniform(-np.pi, np.pi, n), rng.uniform(0, np.pi, n), rng.uniform(-1, 1, n)], -1
+            )
         )
     pos = body.rest_position if position is None else jnp.asarray(position)
     return db.Pose(position=jnp.asarray(pos), angles=angles)

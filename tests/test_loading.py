@@ -27,10 +27,22 @@ def test_mini_body_loads(tmp_path):
 def test_default_bodies_load(variant):
     body = db.load_body(variant=variant)
     assert body.n_spheres >= 200
-    for name in ["left_hand.palm", "left_hand.fingertip", "right_hand.palm", "left_foot.sole",
-                 "left_foot.toe", "right_foot.toe", "head.top", "head.nose", "head.left_eye",
-                 "head.right_eye", "left_forearm.elbow", "right_thigh.knee",
-                 "left_upper_arm.shoulder", "right_thigh.hip"]:
+    for name in [
+        "left_hand.palm",
+        "left_hand.fingertip",
+        "right_hand.palm",
+        "left_foot.sole",
+        "left_foot.toe",
+        "right_foot.toe",
+        "head.top",
+        "head.nose",
+        "head.left_eye",
+        "head.right_eye",
+        "left_forearm.elbow",
+        "right_thigh.knee",
+        "left_upper_arm.shoulder",
+        "right_thigh.hip",
+    ]:
         body.feature_index(name)
     vertebrae = [f"T{i}" for i in range(1, 13)] + [f"L{i}" for i in range(1, 6)]
     for v in vertebrae:
@@ -53,7 +65,9 @@ def test_local_directions_follow_the_seed(male50):
     # Seed 000: "the negative Z-axis is 'up' for the lower arm and the positive X-axis is
     # 'front' for the head".
     dirs = np.asarray(male50.local_directions)
-    np.testing.assert_allclose(dirs[male50.segment_index("left_forearm")][2], [0, 0, -1], atol=1e-12)
+    np.testing.assert_allclose(
+        dirs[male50.segment_index("left_forearm")][2], [0, 0, -1], atol=1e-12
+    )
     np.testing.assert_allclose(dirs[male50.segment_index("head")][0], [1, 0, 0], atol=1e-12)
 
 
@@ -71,7 +85,9 @@ def test_enclosure_holds_every_sphere_in_any_twist(male50):
         dist = np.sqrt(np.sum(o[k, :2] ** 2, 1) + (o[k, 2] - zc) ** 2) + r[k]
         assert np.all(dist <= R + 1e-12)
         grid = np.linspace(o[k, 2].min() - 0.1, o[k, 2].max() + 0.1, 2001)
-        best = min(np.max(np.sqrt(np.sum(o[k, :2] ** 2, 1) + (o[k, 2] - z) ** 2) + r[k]) for z in grid)
+        best = min(
+            np.max(np.sqrt(np.sum(o[k, :2] ** 2, 1) + (o[k, 2] - z) ** 2) + r[k]) for z in grid
+        )
         assert R <= best + 1e-12
 
 
@@ -83,6 +99,7 @@ def test_masses_sum_to_the_body_mass(male50, female50):
 
 # --- malformed files ------------------------------------------------------------------------
 
+
 def seg(doc, name):
     return next(s for s in doc["segments"] if s["name"] == name)
 
@@ -92,9 +109,16 @@ def _set(path, value):
         *head, last = path
         obj = doc
         for k in head:
-            obj = seg(obj, k) if isinstance(k, str) and isinstance(obj, dict) and "segments" in obj \
-                and k not in obj else obj[k]
+            obj = (
+                seg(obj, k)
+                if isinstance(k, str)
+                and isinstance(obj, dict)
+                and "segments" in obj
+                and k not in obj
+                else obj[k]
+            )
         obj[last] = value
+
     return mutate
 
 
@@ -103,8 +127,11 @@ def _del(path):
         *head, last = path
         obj = doc
         for k in head:
-            obj = seg(obj, k) if isinstance(k, str) and "segments" in obj and k not in obj else obj[k]
+            obj = (
+                seg(obj, k) if isinstance(k, str) and "segments" in obj and k not in obj else obj[k]
+            )
         del obj[last]
+
     return mutate
 
 
@@ -122,7 +149,9 @@ def _dup_distal(doc):
 
 
 def _dup_feature(doc):
-    seg(doc, "left_upper_arm")["spheres"][0]["features"] = [{"name": "elbow", "direction": [1, 0, 0]}]
+    seg(doc, "left_upper_arm")["spheres"][0]["features"] = [
+        {"name": "elbow", "direction": [1, 0, 0]}
+    ]
 
 
 BAD = [  # (id, mutation, entry fragment, field, message fragment)
@@ -131,41 +160,109 @@ BAD = [  # (id, mutation, entry fragment, field, message fragment)
     ("unknown top field", _set(["colour"], "red"), "top level", "colour", "unknown field"),
     ("empty segments", _set(["segments"], []), "top level", "segments", "non-empty"),
     ("missing length", _del(["trunk", "length"]), "'trunk'", "length", "missing"),
-    ("length wrong type", _set(["trunk", "length"], "0.5"), "'trunk'", "length", "must be a number"),
+    (
+        "length wrong type",
+        _set(["trunk", "length"], "0.5"),
+        "'trunk'",
+        "length",
+        "must be a number",
+    ),
     ("negative length", _set(["left_forearm", "length"], -0.26), "'left_forearm'", "length", "> 0"),
     ("nan length", _set(["trunk", "length"], float("nan")), "'trunk'", "length", "finite"),
-    ("negative radius", _set(["trunk", "spheres", 0, "radius"], -0.1), "spheres[0]", "radius", "> 0"),
-    ("unknown parent", _set(["left_clavicle", "proximal"], "nek"), "'left_clavicle'", "proximal",
-     "unknown joint 'nek'"),
+    (
+        "negative radius",
+        _set(["trunk", "spheres", 0, "radius"], -0.1),
+        "spheres[0]",
+        "radius",
+        "> 0",
+    ),
+    (
+        "unknown parent",
+        _set(["left_clavicle", "proximal"], "nek"),
+        "'left_clavicle'",
+        "proximal",
+        "unknown joint 'nek'",
+    ),
     ("cycle", _cycle, "segment", "proximal", "cycle"),
     ("duplicate segment", _dup_name, "segments[4]", "name", "duplicate segment name"),
     ("duplicate joint", _dup_distal, "'left_thigh'", "distal", "already the distal joint"),
-    ("inverted limits", _set(["trunk", "limits", "swing_y_deg"], [60, -20]), "(segments[0]), limits",
-     "swing_y_deg", "inverted"),
+    (
+        "inverted limits",
+        _set(["trunk", "limits", "swing_y_deg"], [60, -20]),
+        "(segments[0]), limits",
+        "swing_y_deg",
+        "inverted",
+    ),
     ("zero direction", _set(["trunk", "direction"], [0, 0, 0]), "'trunk'", "direction", "non-zero"),
     ("short direction", _set(["trunk", "direction"], [0, 1]), "'trunk'", "direction", "3 numbers"),
-    ("unknown standard", _set(["left_upper_arm", "standard_orientation"], "left_wing"),
-     "'left_upper_arm'", "standard_orientation", "left_arm"),
-    ("limb not hanging", _set(["left_upper_arm", "direction"], [0, 1, 0]), "'left_upper_arm'",
-     "direction", "hang straight down"),
+    (
+        "unknown standard",
+        _set(["left_upper_arm", "standard_orientation"], "left_wing"),
+        "'left_upper_arm'",
+        "standard_orientation",
+        "left_arm",
+    ),
+    (
+        "limb not hanging",
+        _set(["left_upper_arm", "direction"], [0, 1, 0]),
+        "'left_upper_arm'",
+        "direction",
+        "hang straight down",
+    ),
     ("unknown limit kind", _set(["trunk", "limits", "kind"], "ball"), "limits", "kind", "box"),
     ("negative mass", _set(["trunk", "mass"], -1.0), "'trunk'", "mass", ">= 0"),
     ("duplicate feature", _dup_feature, "features[0]", "name", "unique"),
-    ("zero feature direction", _set(["left_forearm", "spheres", 1, "features", 0, "direction"],
-                                    [0, 0, 0]), "features[0]", "direction", "non-zero"),
+    (
+        "zero feature direction",
+        _set(["left_forearm", "spheres", 1, "features", 0, "direction"], [0, 0, 0]),
+        "features[0]",
+        "direction",
+        "non-zero",
+    ),
     ("unused root", _set(["root_joint"], "pelvis"), "top level", "root_joint", "no segment starts"),
-    ("cone too wide", _set(["left_clavicle", "limits", "swing_max_deg"], 180), "limits",
-     "swing_max_deg", "< 180"),
-    ("misspelt field", _set(["trunk", "spheres", 0, "radus"], 0.1), "spheres[0]", "radus",
-     "allowed fields"),
-    ("infinite centroid", _set(["trunk", "centroid"], [0, float("inf"), 0]), "'trunk'", "centroid",
-     "finite"),
-    ("missing twist", _del(["left_forearm", "limits", "twist_deg"]), "limits", "twist_deg", "missing"),
+    (
+        "cone too wide",
+        _set(["left_clavicle", "limits", "swing_max_deg"], 180),
+        "limits",
+        "swing_max_deg",
+        "< 180",
+    ),
+    (
+        "misspelt field",
+        _set(["trunk", "spheres", 0, "radus"], 0.1),
+        "spheres[0]",
+        "radus",
+        "allowed fields",
+    ),
+    (
+        "infinite centroid",
+        _set(["trunk", "centroid"], [0, float("inf"), 0]),
+        "'trunk'",
+        "centroid",
+        "finite",
+    ),
+    (
+        "missing twist",
+        _del(["left_forearm", "limits", "twist_deg"]),
+        "limits",
+        "twist_deg",
+        "missing",
+    ),
     ("reserved name", _set(["trunk", "name"], "whole_body"), "segments[0]", "name", "reserved"),
-    ("root as distal", _set(["left_forearm", "distal"], "hip"), "'left_forearm'", "distal",
-     "root joint"),
-    ("limit out of range", _set(["trunk", "limits", "twist_deg"], [-200, 40]), "limits",
-     "twist_deg", "[-180, 180]"),
+    (
+        "root as distal",
+        _set(["left_forearm", "distal"], "hip"),
+        "'left_forearm'",
+        "distal",
+        "root joint",
+    ),
+    (
+        "limit out of range",
+        _set(["trunk", "limits", "twist_deg"], [-200, 40]),
+        "limits",
+        "twist_deg",
+        "[-180, 180]",
+    ),
 ]
 
 

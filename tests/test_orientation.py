@@ -42,7 +42,9 @@ def test_seed_001_conventions_closed_form():
     # Seed 001's SphereToCartCoordinates: z = r sin t cos p, y = r sin t sin p, x = r cos t.
     t, p, r = 0.7, -1.2, 2.0
     v = np.asarray(db.inclination_azimuth_to_vector(t, p, r))
-    np.testing.assert_allclose(v, [r * np.cos(t), r * np.sin(t) * np.sin(p), r * np.sin(t) * np.cos(p)])
+    np.testing.assert_allclose(
+        v, [r * np.cos(t), r * np.sin(t) * np.sin(p), r * np.sin(t) * np.cos(p)]
+    )
     # Points on the y' axis have azimuth +-90 degrees.
     assert np.isclose(db.vector_to_inclination_azimuth(jnp.array([0.0, 2.0, 0.0]))[1], np.pi / 2)
 
@@ -74,7 +76,8 @@ def test_orientation_matrix_is_seed_construction():
     Ry = lambda a: np.array([[c(a), 0, s(a)], [0, 1, 0], [-s(a), 0, c(a)]])  # noqa: E731
     np.testing.assert_allclose(db.orientation_matrix(theta, phi, tw), Rz(theta) @ Ry(phi) @ Rz(tw))
     np.testing.assert_allclose(
-        np.asarray(db.orientation_matrix(theta, phi, tw))[:, 2], db.azimuth_polar_to_vector(theta, phi)
+        np.asarray(db.orientation_matrix(theta, phi, tw))[:, 2],
+        db.azimuth_polar_to_vector(theta, phi),
     )
 
 
@@ -84,9 +87,14 @@ def test_orientation_matrix_is_seed_construction():
 def test_left_arm_table_values_from_the_seed():
     # Spot values typed from seed 000's table (degrees).
     cases = [  # theta, phi, t
-        (0, 0, 180), (45, 45, 180 - 45 * 0.5), (0, 135, -180), (45, 180, -135),
-        (180, 135, 0), (135, 45, 2 * (135 - 180) * 45 / 90 - (180 + 135) * 0.5),
-        (200, 30, (180 - 200) * (1 - 1) + 360 * 30 / 90), (250, 30, (180 - 250) * 0 - 360 * 30 / 90),
+        (0, 0, 180),
+        (45, 45, 180 - 45 * 0.5),
+        (0, 135, -180),
+        (45, 180, -135),
+        (180, 135, 0),
+        (135, 45, 2 * (135 - 180) * 45 / 90 - (180 + 135) * 0.5),
+        (200, 30, (180 - 200) * (1 - 1) + 360 * 30 / 90),
+        (250, 30, (180 - 250) * 0 - 360 * 30 / 90),
     ]
     for th, ph, t in cases:
         got = float(db.standard_twist(th * DEG, ph * DEG, "left_arm")) / DEG
@@ -97,7 +105,9 @@ def test_left_arm_table_values_from_the_seed():
 def test_hanging_limb_has_standard_position_cross_of_axes(limb):
     # X forward, Y right, Z down whatever theta: the built-in consistency check of DESIGN 1.
     for theta in np.linspace(-np.pi, np.pi, 13):
-        np.testing.assert_allclose(frame(theta, np.pi, limb), np.diag([1.0, -1.0, -1.0]), atol=1e-12)
+        np.testing.assert_allclose(
+            frame(theta, np.pi, limb), np.diag([1.0, -1.0, -1.0]), atol=1e-12
+        )
 
 
 @pytest.mark.parametrize("limb", LIMBS)
@@ -169,5 +179,7 @@ def test_unknown_limb_is_rejected():
 @pytest.mark.parametrize("limb", LIMBS)
 def test_standard_twist_gradients_finite_at_poles(limb):
     for phi in (0.0, np.pi):
-        g = jax.grad(lambda tp: jnp.sum(db.standard_frame(tp[0], tp[1], limb)))(jnp.array([0.4, phi]))
+        g = jax.grad(lambda tp: jnp.sum(db.standard_frame(tp[0], tp[1], limb)))(
+            jnp.array([0.4, phi])
+        )
         assert np.all(np.isfinite(g))

@@ -54,7 +54,7 @@ def test_apply_standard_orientation_keeps_joints_and_resets_twists(male50):
     np.testing.assert_allclose(out.angles[1:, 2], 0.0)
     # Idempotent: the projection of a projection is itself.
     again = db.apply_standard_orientation(male50, out)
-    np.testing.assert_allclose(again.angles, out.angles, atol=1e-9)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (again.angles - out.angles))), 0.0, atol=1e-9)
 
 
 def test_pose_from_positions_for_a_rerooted_body(male50):
@@ -90,8 +90,8 @@ def test_fixed_reference_flips_but_smooth_reference_does_not():
     ref = jnp.array([0.0, 0.0, 1.0])
     rest_bone = jnp.array([1.0, 0.0, 0.0])
     rest_ref = jnp.array([0.0, 0.0, 1.0])
-    before = jnp.array([0.05, 1e-4, 1.0])
-    after = jnp.array([0.05, -1e-4, 1.0])  # a tiny step across the reference axis
+    before = jnp.array([1e-4, 0.0, 1.0])
+    after = jnp.array([-1e-4, 0.0, 1.0])  # a tiny step across the reference axis
     jump_seed = np.abs(np.asarray(db.local_frame(before, ref) - db.local_frame(after, ref))).max()
     smooth = lambda b: db.local_frame(b, db.smooth_reference(b, rest_bone, rest_ref))  # noqa: E731
     jump_ours = np.abs(np.asarray(smooth(before) - smooth(after))).max()
@@ -105,7 +105,9 @@ def test_smooth_frame_has_finite_gradients_along_the_parent_axis():
         for jac in (jax.jacfwd(f), jax.jacrev(f)):
             assert np.all(np.isfinite(jac(jnp.asarray(bone))))
     # ...and the seed's fixed reference stays finite (though it jumps) exactly on the axis.
-    g = jax.jacfwd(lambda b: db.local_frame(b, jnp.array([1.0, 0.0, 0.0])))(jnp.array([2.0, 0.0, 0.0]))
+    g = jax.jacfwd(lambda b: db.local_frame(b, jnp.array([1.0, 0.0, 0.0])))(
+        jnp.array([2.0, 0.0, 0.0])
+    )
     assert np.all(np.isfinite(g))
 
 
@@ -113,10 +115,14 @@ def test_local_frames_and_descriptors_of_the_body(male50):
     pose = random_pose(male50, np.random.default_rng(14))
     p = db.forward(male50, pose).joint_positions
     frames = np.asarray(db.local_frames(male50, p))
-    np.testing.assert_allclose(frames @ frames.transpose(0, 2, 1), np.broadcast_to(np.eye(3), frames.shape), atol=1e-12)
+    np.testing.assert_allclose(
+        frames @ frames.transpose(0, 2, 1), np.broadcast_to(np.eye(3), frames.shape), atol=1e-12
+    )
     prox, dist = np.asarray(male50.proximal_joint), np.asarray(male50.distal_joint)
     bones = np.asarray(p)[dist] - np.asarray(p)[prox]
-    np.testing.assert_allclose(np.einsum("kij,ki->kj", frames, bones)[1:, 0], male50.lengths[1:], atol=1e-12)
+    np.testing.assert_allclose(
+        np.einsum("kij,ki->kj", frames, bones)[1:, 0], male50.lengths[1:], atol=1e-12
+    )
     desc = np.asarray(db.bone_descriptors(male50, p))
     np.testing.assert_allclose(desc[1:, 2], male50.lengths[1:], atol=1e-12)  # r is the bone length
     # The descriptors describe the bone in its parent's frame: rebuild it and compare.
@@ -131,7 +137,4 @@ def test_descriptors_are_posture_invariant_to_a_global_turn(male50):
     turned = eqx.tree_at(lambda p: p.angles, pose, pose.angles.at[0, 2].add(1.0))
     d1 = db.bone_descriptors(male50, db.forward(male50, pose).joint_positions)
     d2 = db.bone_descriptors(male50, db.forward(male50, turned).joint_positions)
-    # Segments leaving the root are described in the world frame (the seed sets the root's
-    # system to the global one); all others are invariant.
-    deeper = np.asarray(male50.parent) > 0
-    np.testing.assert_allclose(d1[deeper], d2[deeper], atol=1e-9)
+    np.testing.assert_allclose(d1, d2, atol=1e-9)

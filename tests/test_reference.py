@@ -426,18 +426,8 @@ def test_random_poses_at_the_poles(case):
     _compare(case, positions, angles, "pole pose")
 
 
-@pytest.mark.xfail(
-    reason="diffbody bug (reported): near the direction opposite a swing segment's rest "
-    "direction (whole_body or a vertebra at phi = pi, a forearm at phi = 0) its base frame "
-    "loses accuracy like 1e-16 / delta**2 (7e-9 at delta = 1e-4 rad, 1e-4 at 1e-6), is no "
-    "rotation at 1e-8 (det -0.55) and a reflection (det -1) at delta = 0",
-    strict=False,
-)
-@pytest.mark.parametrize("delta", [0.0, 1e-8, 1e-6, 1e-4])
-def test_swing_opposite_rest_direction(case, delta):
-    """Swing segments resting along +-Z sent to (within delta of) the opposite pole. The
-    reference takes the limit along the meridian of theta there; whatever the convention,
-    the frame must be a rotation whose Z is the requested direction."""
+def _opposite_pose(case, delta):
+    """Every swing segment resting along +-Z sent to within delta of the opposite pole."""
     rest = _rest_directions(case)
     pose = case.body.rest_pose()
     angles = np.repeat(np.asarray(pose.angles)[None], 3, axis=0)
@@ -450,8 +440,33 @@ def test_swing_opposite_rest_direction(case, delta):
             angles[:, i, 1] = phi
             moved = True
     assert moved
-    positions = np.repeat(np.asarray(pose.position)[None], 3, axis=0)
+    return np.repeat(np.asarray(pose.position)[None], 3, axis=0), angles
+
+
+@pytest.mark.parametrize("delta", [1e-8, 1e-6, 1e-4])
+def test_swing_near_opposite_rest_direction(case, delta):
+    """Regression: near the direction opposite a swing segment's rest direction the smallest
+    rotation used to cancel catastrophically (errors ~1e-16 / delta**2, a reflection at the
+    pole itself)."""
+    positions, angles = _opposite_pose(case, delta)
     _compare(case, positions, angles, f"opposite rest direction, delta {delta}")
+
+
+def test_swing_exactly_opposite_rest_direction(case):
+    """Exactly opposite the rest direction the smallest rotation is not unique (the reference
+    takes the limit along the pose's meridian, diffbody a fixed half-turn): whatever the
+    convention, every frame must be a proper rotation, and the whole body's Z (whose socket is
+    the world) the requested direction. Deeper segments hang from frames that differ by the
+    convention, so their directions differ too."""
+    positions, angles = _opposite_pose(case, 0.0)
+    for pos, ang in zip(positions, angles):
+        fk = case.fk(case.body, db.Pose(position=jnp.asarray(pos), angles=jnp.asarray(ang)))
+        R = np.asarray(fk.R_world_base)
+        np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
+        eye = np.broadcast_to(np.eye(3), R.shape)
+        np.testing.assert_allclose(R @ R.transpose(0, 2, 1), eye, atol=1e-12)
+        ref = H.reference_forward(case.doc, pos, _angles_dict(case.body, ang))
+        np.testing.assert_allclose(R[0][:, 2], ref["frames_base"][WB][:, 2], atol=1e-12)
 
 
 def test_twist_only_poses(case):
