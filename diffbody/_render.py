@@ -80,16 +80,16 @@ def draw(
     to_camera, right, up, label = _camera(view)
     xy = np.stack([centers @ right, centers @ up], axis=-1)
     order = np.argsort(centers @ to_camera)  # far first (painter's algorithm)
-    light = np.array([-0.45, 0.6])  # light from the upper left of the screen
-    layers = 6
+    light = np.array([-0.4, 0.55])  # light from the upper left of the screen
+    layers = 9
     patches, colours = [], []
     for k in order:
         base = np.array(_REGION_COLOURS[_region(body.segment_names[body.sphere_segment[k]])])
         for j in range(layers):
             t = j / (layers - 1)
-            r = radii[k] * (1.0 - 0.8 * t)
-            c = xy[k] + light * radii[k] * 0.45 * t
-            shade = base * (0.45 + 0.6 * t**0.7) + 0.25 * t**4
+            r = radii[k] * (1.0 - 0.85 * t**0.9)
+            c = xy[k] + light * radii[k] * 0.5 * t
+            shade = base * (0.35 + 0.75 * t**0.6) + 0.3 * t**6
             patches.append(Circle((c[0], c[1]), r))
             colours.append(np.clip(shade, 0.0, 1.0))
     ax.add_collection(PatchCollection(patches, facecolors=colours, edgecolors="none"))
@@ -102,8 +102,8 @@ def draw(
         f = np.asarray(fk.feature_points, dtype=float)
         ax.scatter(f @ right, f @ up, s=6, color="crimson", zorder=4)
     lo, hi = xy.min(axis=0) - radii.max(), xy.max(axis=0) + radii.max()
-    if ground and abs(up[2]) > 0.5:
-        ax.axhline(0.0 if up[2] > 0 else 0.0, color="0.5", lw=0.8, zorder=0)
+    if ground and up[2] > 0.5:  # the floor z = 0 as a line in side-on views
+        ax.axhline(0.0, color="0.5", lw=0.8, zorder=0)
         lo[1] = min(lo[1], -0.05)
     pad = 0.05 * (hi - lo).max()
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
