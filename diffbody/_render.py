@@ -17,6 +17,7 @@ VIEWS = {  # (azimuth, elevation) of the camera, degrees; azimuth from +X toward
     "top": (0.0, 90.0),
     "perspective": (35.0, 20.0),
 }
+View = str | tuple[float | int, float | int]  # a named view or (azimuth, elevation) in degrees
 _REGION_COLOURS = {  # muted, so that the shading reads
     "skin": (0.87, 0.72, 0.60),
     "torso": (0.42, 0.55, 0.72),
@@ -38,7 +39,7 @@ def _region(segment: str) -> str:
     return "torso"
 
 
-def _camera(view: str | tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+def _camera(view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """Unit vectors toward the camera, screen right and screen up, and a label."""
     if isinstance(view, str):
         if view not in VIEWS:
@@ -62,7 +63,7 @@ def draw(
     ax,
     body: Body,
     pose: Pose,
-    view: str | tuple[float, float] = "front",
+    view: View = "front",
     *,
     features: bool = False,
     skeleton: bool = False,
@@ -120,7 +121,7 @@ def render(
     body: Body,
     pose: Pose,
     path: str | Path,
-    view: str | tuple[float, float] | Sequence[str | tuple[float, float]] = "front",
+    view: View | Sequence[View] = "front",
     *,
     features: bool = False,
     skeleton: bool = False,
