@@ -66,6 +66,30 @@ from ._posture import (
 from ._posture import (
     pose_from_joint_positions as pose_from_joint_positions,
 )
-from ._render import render as render
+from ._render import draw as draw, render as render
+from ._spine import (
+    BendResult as BendResult,
+)
+from ._spine import (
+    Spine as Spine,
+)
+from ._spine import (
+    bend_pose as bend_pose,
+)
+from ._spine import (
+    bendspine as bendspine,
+)
+from ._spine import (
+    load_spine as load_spine,
+)
+from ._spine import (
+    movespine as movespine,
+)
+from ._spine import (
+    spine_angles as spine_angles,
+)
+from ._spine import (
+    with_spine_angles as with_spine_angles,
+)
 
 __version__ = "0.1.0"

@@ -186,26 +186,28 @@ def _enclosure(origins: np.ndarray, radii: np.ndarray) -> tuple[float, float]:
     return z, f(z)
 
 
+def data_file(name: str) -> Path:
+    """A file of the embedded data: data/ of a source checkout or of the installed wheel."""
+    for folder in (
+        Path(__file__).resolve().parent.parent / "data",  # a source checkout
+        Path(str(resources.files("diffbody"))) / "data",  # an installed wheel
+    ):
+        if (folder / name).is_file():
+            return folder / name
+    raise FileNotFoundError(f"diffbody: embedded data file {name!r} not found")
+
+
 def _resolve(path: str | Path | None, variant: str) -> Path:
     if path is not None:
         return Path(path)
-    name = f"body_{variant}.json"
-    candidates = [
-        Path(__file__).resolve().parent.parent / "data",  # a source checkout
-        Path(str(resources.files("diffbody"))) / "data",  # an installed wheel
-    ]
-    for folder in candidates:
-        if (folder / name).is_file():
-            return folder / name
-    found = sorted(
-        {
-            p.stem.removeprefix("body_")
-            for f in candidates
-            if f.is_dir()
-            for p in f.glob("body_*.json")
-        }
-    )
-    raise ValueError(f"load_body: unknown variant {variant!r}; available variants: {found}")
+    try:
+        return data_file(f"body_{variant}.json")
+    except FileNotFoundError:
+        folder = data_file("SCHEMA.md").parent
+        found = sorted(p.stem.removeprefix("body_") for p in folder.glob("body_*.json"))
+        raise ValueError(
+            f"load_body: unknown variant {variant!r}; available variants: {found}"
+        ) from None
 
 
 def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Body:

@@ -29,8 +29,12 @@ def test_render_draws_the_body(male50, tmp_path):
 
 def test_render_several_views_and_angles(male50, tmp_path):
     path = db.render(
-        male50, male50.rest_pose(), tmp_path / "views.png", view=["front", "left", (30.0, 20.0)],
-        features=True, skeleton=True,
+        male50,
+        male50.rest_pose(),
+        tmp_path / "views.png",
+        view=["front", "left", (30.0, 20.0)],
+        features=True,
+        skeleton=True,
     )
     one = _image(db.render(male50, male50.rest_pose(), tmp_path / "one.png"))
     assert _image(path).shape[1] > 2 * one.shape[1]
