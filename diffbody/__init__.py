@@ -66,7 +66,8 @@ from ._posture import (
 from ._posture import (
     pose_from_joint_positions as pose_from_joint_positions,
 )
-from ._render import draw as draw, render as render
+from ._render import draw as draw
+from ._render import render as render
 from ._spine import (
     BendResult as BendResult,
 )

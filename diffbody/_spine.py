@@ -220,7 +220,7 @@ def bendspine(
     joint_range: tuple[int, int] | Int[ArrayLike, "2"] | None = None,
     zero_interpolation: bool = True,
     spread: float = 3.0,
-    tol: float = 1e-9,
+    tol: float | None = None,
 ) -> BendResult:
     """Bendspine (seed 004): new joint angles whose sum is `target`.
 
@@ -255,6 +255,8 @@ def bendspine(
             back to rest, then on toward the other limits). False: only the limits are
             interpolated toward, so sweeping back and forth takes different paths.
         spread: falloff of participation from the initiator, in joints.
+        tol: how close (rad, relative to max(1, |target|)) the sum must come to count as
+            reached; default 100 n eps of the dtype (2e-4 rad in float32).
 
     Returns:
         `BendResult`.
@@ -296,6 +298,8 @@ def bendspine(
         zero_interpolation,
     )
     shortfall = target - jnp.sum(angles, axis=0)
+    if tol is None:
+        tol = 100 * n * float(jnp.finfo(angles.dtype).eps)
     reached = jnp.abs(shortfall) <= tol * jnp.maximum(1.0, jnp.abs(target))
     return BendResult(angles=angles, reached=reached, shortfall=shortfall)
 

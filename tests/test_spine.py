@@ -281,3 +281,44 @@ def test_the_body_follows_the_spine(male50, spine):
     assert fk1.feature_points[head][2] < fk0.feature_points[head][2] - 0.02
     t7 = male50.segment_spheres("T7")
     assert float(jnp.abs(fk1.sphere_centers[t7] - fk0.sphere_centers[t7]).max()) > 0.02
+
+
+def test_the_database_agrees_with_the_body(male50, spine):
+    """The body's vertebra limits are the spine's limits less its rest angles (the standard
+    position is the spine at rest)."""
+    seg = np.asarray([male50.segment_index(s) for s in spine.segment_names])
+    dev_lo = np.asarray(spine.lower - spine.rest)
+    dev_hi = np.asarray(spine.upper - spine.rest)
+    np.testing.assert_allclose(np.asarray(male50.swing_lo)[seg], dev_lo[:, [2, 0]], atol=1e-9)
+    np.testing.assert_allclose(np.asarray(male50.swing_hi)[seg], dev_hi[:, [2, 0]], atol=1e-9)
+    np.testing.assert_allclose(np.asarray(male50.twist_lo)[seg], dev_lo[:, 1], atol=1e-9)
+    np.testing.assert_allclose(np.asarray(male50.twist_hi)[seg], dev_hi[:, 1], atol=1e-9)
+    rest_flex = np.degrees(np.asarray(spine.rest)[:, 0])
+    assert abs(rest_flex[1:12].sum() - 40) < 1e-6 and abs(rest_flex[13:].sum() + 60) < 1e-6
+
+
+def test_bad_spine_file_is_named(tmp_path):
+    import json
+
+    doc = json.loads(db._loading.data_file("spine.json").read_text())
+    doc["joints"][3]["rest_deg"][0] = 90.0
+    path = tmp_path / "spine.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(
+        db.BodyFileError,
+        match=r"spine.json: joint 'T3_T4' \(joints\[3\]\), field 'limits_deg.flexion'",
+    ):
+        db.load_spine(path)
+    del doc["joints"][2]["limits_deg"]
+    path.write_text(json.dumps(doc))
+    with pytest.raises(db.BodyFileError, match="joint 'T2_T3'"):
+        db.load_spine(path)
+
+
+def test_bad_arguments_are_rejected(spine):
+    with pytest.raises(ValueError, match="initiator 18"):
+        db.bendspine(spine, spine.rest, jnp.zeros(3), initiator=18)
+    with pytest.raises(ValueError, match="outside joint_range"):
+        db.bendspine(spine, spine.rest, jnp.zeros(3), initiator=2, joint_range=(5, 9))
+    with pytest.raises(KeyError, match="T6_T7"):
+        spine.joint_index("T6-T7")
