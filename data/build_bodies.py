@@ -1012,6 +1012,8 @@ def build(variant: str, sex: str) -> dict:
         "description": description,
         "sources": SOURCES,
         "root_joint": "center_hip",
+        # The spine database that drives the vertebrae (data/spine.json, data/build_spine.py).
+        "spine": "spine.json",
         "segments": segments,
     }
 

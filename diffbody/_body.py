@@ -9,11 +9,15 @@ explicit: segment 0 is always "whole_body" and joint 0 always "center_of_gravity
 
 import dataclasses
 import difflib
+from typing import TYPE_CHECKING
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
+
+if TYPE_CHECKING:
+    from ._spine import Spine
 
 WHOLE_BODY = "whole_body"
 CENTER_OF_GRAVITY = "center_of_gravity"
@@ -39,6 +43,9 @@ class Pose(eqx.Module):
 
     position: Float[Array, "3"]
     angles: Float[Array, "n_seg 3"]
+    # Optional Bendspine target (rad, the sum of the spine's joint angles): when given,
+    # `forward` bends the body's spine database to it from rest and overrides the vertebra rows.
+    spine_target: Float[Array, "3"] | None = None
 
 
 class Body(eqx.Module):
@@ -83,6 +90,7 @@ class Body(eqx.Module):
     enclosure_radii: Float[Array, " n_seg"]  # m
     rest_position: Float[Array, "3"]  # m, the root joint in the standard position
     R_world_pin_rest: Float[Array, "3 3"]  # pinned frame at the root joint, standard position
+    spine: "Spine | None" = None  # the spine database driving the vertebrae, if any
 
     # --- name lookups (host side, outside jit) -------------------------------------------
     @property

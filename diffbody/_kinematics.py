@@ -58,6 +58,20 @@ def twist_fraction(z: Float[Array, "*b"], length: Float[Array, "*b"]) -> Float[A
     return jnp.where(length > 0, jnp.clip(z / safe_length, 0.0, 1.0), 0.0)
 
 
+def _bend_spine(body: Body, pose: Pose) -> Pose:
+    """The pose with its vertebra rows from Bendspine of its spine target, from rest."""
+    from ._spine import bendspine, with_spine_angles
+
+    if body.spine is None:
+        raise ValueError(
+            f"forward: the pose has a spine_target but body {body.name!r} has no spine database "
+            '(add "spine": "spine.json" to its file, see data/SCHEMA.md)'
+        )
+    spine = body.spine
+    out = bendspine(spine, spine.rest, pose.spine_target, initiator=spine.initiator)
+    return with_spine_angles(body, spine, pose, out.angles)
+
+
 def forward(body: Body, pose: Pose) -> Kinematics:
     """Forward kinematics of one pose (seed 000).
 
@@ -69,12 +83,16 @@ def forward(body: Body, pose: Pose) -> Kinematics:
 
     Args:
         body: the body (its arrays may be traced: FK is differentiable in the dimensions).
-        pose: `Pose` with `angles` (n_seg, 3) = (theta, phi, tau) and `position` (3,).
+        pose: `Pose` with `angles` (n_seg, 3) = (theta, phi, tau) and `position` (3,); if
+            it has a `spine_target`, the body's spine is first bent to it from rest
+            (Bendspine, initiator `body.spine.initiator`), replacing the vertebra rows.
 
     Returns:
         `Kinematics`: joint positions, frames, sphere centres and radii, feature points,
         centroids and the whole body's center of gravity.
     """
+    if pose.spine_target is not None:
+        pose = _bend_spine(body, pose)
     angles = jnp.asarray(pose.angles)
     tau = angles[:, TAU]
     R_parent_base = matmul3(body.R_parent_socket, socket_frames(body, angles))

@@ -5,6 +5,7 @@ expected, e.g. ``data/body.json: segment 'left_forearm' (segments[12]), field 'l
 must be > 0, got -0.2``.
 """
 
+import dataclasses
 import json
 import math
 from collections import deque
@@ -20,7 +21,7 @@ from ._orientation import LIMBS
 from ._rotations import cross_of_axes
 
 SCHEMA = "diffbody.body/1"
-TOP_FIELDS = {"schema", "name", "description", "sources", "root_joint", "segments"}
+TOP_FIELDS = {"schema", "name", "description", "sources", "root_joint", "segments", "spine"}
 SEGMENT_FIELDS = {
     "name",
     "proximal",
@@ -235,7 +236,7 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
             f"{shown}: not valid JSON: {e.msg} at line {e.lineno} column {e.colno}"
         ) from None
     top = _Where(shown, "top level")
-    top.fields(doc, TOP_FIELDS - {"description"}, {"description"})
+    top.fields(doc, TOP_FIELDS - {"description", "spine"}, {"description", "spine"})
     if doc["schema"] != SCHEMA:
         raise top.fail("schema", f"must be {SCHEMA!r}, got {doc['schema']!r}")
     name = top.string(doc, "name")
@@ -369,7 +370,21 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
             f"cycle in the tree: {' -> '.join(cycle)}; it never reaches the root "
             f"joint {root_name!r}",
         )
-    return _build(name, shown, root_name, [parsed[k] for k in order], [depth[k] for k in order])
+    body = _build(name, shown, root_name, [parsed[k] for k in order], [depth[k] for k in order])
+    if "spine" in doc:
+        from ._spine import load_spine
+
+        spine_path = path.parent / top.string(doc, "spine")
+        spine = load_spine(spine_path)
+        for joint, seg in zip(spine.joint_names, spine.segment_names):
+            if seg not in body.segment_names:
+                raise top.fail(
+                    "spine",
+                    f"{spine_path}: joint {joint!r} moves segment {seg!r}, which the "
+                    "body does not have",
+                )
+        body = dataclasses.replace(body, spine=spine)
+    return body
 
 
 def _build(name: str, source: str, root_name: str, segs: list[dict], depths: list[int]) -> Body:

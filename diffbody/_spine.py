@@ -36,6 +36,7 @@ class Spine(eqx.Module):
     size. Build it with `diffbody.load_spine`."""
 
     joint_names: tuple[str, ...] = eqx.field(static=True)  # "C7_T1", ..., "L5_S1"
+    initiator: int = eqx.field(static=True)  # default initiator of a Pose's spine_target
     segment_names: tuple[str, ...] = eqx.field(static=True)  # body segment each joint moves
     vertebra_names: tuple[str, ...] = eqx.field(static=True)  # "T1", ..., "L5"
     rest: Float[Array, "n_joint 3"]  # rad, the standing posture
@@ -111,6 +112,8 @@ def load_spine(path: str | Path | None = None) -> Spine:
     verts = doc.get("vertebrae", [])
     return Spine(
         joint_names=tuple(names),
+        # A pose's spine target bends from the thoracolumbar junction unless told otherwise.
+        initiator=names.index("T12_L1") if "T12_L1" in names else len(names) // 2,
         segment_names=tuple(segs),
         vertebra_names=tuple(v["name"] for v in verts),
         rest=jnp.deg2rad(jnp.asarray(rest)),

@@ -322,3 +322,49 @@ def test_bad_arguments_are_rejected(spine):
         db.bendspine(spine, spine.rest, jnp.zeros(3), initiator=2, joint_range=(5, 9))
     with pytest.raises(KeyError, match="T6_T7"):
         spine.joint_index("T6-T7")
+
+
+def test_a_pose_can_carry_a_spine_target(male50):
+    spine = male50.spine
+    rest = male50.rest_pose()
+    target = spine.rest.sum(0) + jnp.array([0.5, 0.2, -0.1])
+    carried = db.Pose(rest.position, rest.angles, spine_target=target)
+    bent, _ = db.bend_pose(male50, spine, rest, target, initiator=spine.initiator)
+    fk = jax.jit(db.forward)
+    np.testing.assert_allclose(
+        fk(male50, carried).sphere_centers, fk(male50, bent).sphere_centers, atol=1e-12
+    )
+    # Differentiable in the target (away from the clamps): the top of the head.
+    top = male50.feature_index("head.top")
+
+    def head(t):
+        return db.forward(
+            male50, db.Pose(rest.position, rest.angles, spine_target=t)
+        ).feature_points[top]
+
+    jac = jax.jit(jax.jacfwd(head))(target)
+    np.testing.assert_allclose(jac, jax.jit(jax.jacrev(head))(target), atol=1e-12)
+    h = 1e-6
+    fd = np.stack([(head(target + h * e) - head(target - h * e)) / (2 * h) for e in np.eye(3)], -1)
+    np.testing.assert_allclose(fd, jac, atol=1e-6)
+    # Batches of targets are a vmap.
+    targets = jnp.stack([target, spine.rest.sum(0)])
+    batch = jax.vmap(
+        lambda t: db.forward(male50, db.Pose(rest.position, rest.angles, spine_target=t))
+    )
+    np.testing.assert_allclose(
+        batch(targets).sphere_centers[1], fk(male50, rest).sphere_centers, atol=1e-12
+    )
+
+
+def test_spine_target_needs_a_spine(tmp_path):
+    from bodies import mini_doc, write
+
+    body = db.load_body(write(mini_doc(), tmp_path / "mini.json"))
+    pose = body.rest_pose()
+    with pytest.raises(ValueError, match="no spine database"):
+        db.forward(body, db.Pose(pose.position, pose.angles, spine_target=jnp.zeros(3)))
+    doc = mini_doc()
+    doc["spine"] = str(db._loading.data_file("spine.json"))
+    with pytest.raises(db.BodyFileError, match="'spine'.*moves segment 'neck'"):
+        db.load_body(write(doc, tmp_path / "mini_spine.json"))
