@@ -2,7 +2,21 @@
 
 from ._body import Body as Body
 from ._body import Pose as Pose
+from ._export import (
+    export_mjcf as export_mjcf,
+    export_urdf as export_urdf,
+    mujoco_joint_names as mujoco_joint_names,
+    mujoco_qpos as mujoco_qpos,
+    urdf_joint_values as urdf_joint_values,
+)
 from ._kinematics import Kinematics as Kinematics
+from ._export import (
+    export_mjcf as export_mjcf,
+    export_urdf as export_urdf,
+    mujoco_joint_names as mujoco_joint_names,
+    mujoco_qpos as mujoco_qpos,
+    urdf_joint_values as urdf_joint_values,
+)
 from ._kinematics import forward as forward
 from ._limits import (
     STOP_COLUMNS as STOP_COLUMNS,

@@ -99,7 +99,7 @@ def _hinge_angles(body: Body, angles: jax.Array) -> jax.Array:
 
 def _zyz(M: jax.Array) -> jax.Array:
     """(a, b, c) with M = Rz(a) Ry(b) Rz(c), b in [0, pi]; a = 0 at the poles. c is read off
-    the residual Rz(a) Ry(b) times its transpose with M, so it stays exact near the poles."""
+    the residual (Rz(a) Ry(b))^T M = Rz(c), so it stays exact near the poles."""
     rho = jnp.hypot(M[0, 2], M[1, 2])
     b = jnp.arctan2(rho, M[2, 2])
     a = jnp.where(rho > 1e-12, jnp.arctan2(M[1, 2], M[0, 2]), 0.0)

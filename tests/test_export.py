@@ -102,6 +102,22 @@ def test_mjcf_structure_and_masses(male50, mj_model):
     np.testing.assert_allclose(model.key_qpos[0], mujoco_qpos(male50, male50.rest_pose()))
 
 
+def test_mjcf_mass_matrix_regular_at_the_poles(male50, mj_model):
+    """qpos = 0 (every segment at its socket's pole) and the standard position (hanging limbs
+    at phi = pi) put theta and twist on one axis; the joints' armature keeps MuJoCo's mass
+    matrix regular there, so the dynamics run without warnings."""
+    import mujoco
+
+    data = mujoco.MjData(mj_model)
+    for key in (None, 0):
+        if key is not None:
+            mujoco.mj_resetDataKeyframe(mj_model, data, key)
+        mujoco.mj_forward(mj_model, data)
+        mujoco.mj_step(mj_model, data)
+        assert not any(w.number for w in data.warning)
+        assert np.all(np.isfinite(data.qacc))
+
+
 def test_mjcf_kinematics_match_forward(male50, fk_male50, mj_model):
     """xpos = proximal joint, xmat = twisted frame, joint sites exact for any pose; sphere
     geoms and feature sites exact where the segments carrying them have no twist."""
