@@ -5,6 +5,7 @@ jax.jit / jax.vmap / jax.grad. Batching is jax.vmap over poses (or bodies).
 """
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -97,27 +98,41 @@ def forward(body: Body, pose: Pose) -> Kinematics:
     tau = angles[:, TAU]
     R_parent_base = matmul3(body.R_parent_socket, socket_frames(body, angles))
     position = jnp.asarray(pose.position, R_parent_base.dtype)
-    # Segments are stored breadth first, so each level is a contiguous block whose parents
-    # all lie in the block before: compose block by block, no scatter into full arrays.
+    # The tree is walked level by level with one lax.scan (the levels are static and padded
+    # to one width; padding reads and writes a scratch slot n): a single compiled step keeps
+    # compile times short, also under jacobians and solvers.
+    n = body.n_segments
     parents = np.asarray(body.parent)
-    R_base, R_twisted, p_prox, p_dist = [], [], [], []
-    start_prev = 0
-    for level in body.levels:
-        lo, hi = level[0], level[-1] + 1
-        if parents[lo] < 0:  # the whole body hangs from the environment
-            R_b = R_parent_base[lo:hi]
-            p_up = jnp.broadcast_to(position, (hi - lo, 3))
-        else:
-            up = parents[lo:hi] - start_prev
-            R_b = matmul3(R_twisted[-1][up], R_parent_base[lo:hi])
-            p_up = p_dist[-1][up]
-        R_base.append(R_b)
-        R_twisted.append(twist_about_z(R_b, tau[lo:hi]))
-        p_prox.append(p_up)
-        p_dist.append(p_up + R_b[:, :, 2] * body.lengths[lo:hi, None])
-        start_prev = lo
-    R_base, R_twisted = jnp.concatenate(R_base), jnp.concatenate(R_twisted)
-    p_prox, p_dist = jnp.concatenate(p_prox), jnp.concatenate(p_dist)
+    rest_levels = body.levels[1:]
+    width = max((len(level) for level in rest_levels), default=1)
+    idx = np.full((max(len(rest_levels), 1), width), n)
+    for k, level in enumerate(rest_levels):
+        idx[k, : len(level)] = level
+    par = np.where(idx < n, np.append(parents, n)[idx], n)
+    pad = lambda a: jnp.concatenate([a, jnp.zeros_like(a[:1])])  # noqa: E731
+    R_local, tau_p, L_p = pad(R_parent_base), pad(tau), pad(body.lengths)
+    R_b0 = R_parent_base[0]
+    carry = (
+        jnp.zeros((n + 1, 3, 3), R_b0.dtype).at[0].set(R_b0),
+        jnp.zeros((n + 1, 3, 3), R_b0.dtype).at[0].set(twist_about_z(R_b0, tau[0])),
+        jnp.zeros((n + 1, 3), R_b0.dtype).at[0].set(position),
+        jnp.zeros((n + 1, 3), R_b0.dtype).at[0].set(position + R_b0[:, 2] * body.lengths[0]),
+    )
+
+    def level_step(carry, xs):
+        R_b, R_t, p_p, p_d = carry
+        i, up = xs
+        Rb = matmul3(R_t[up], R_local[i])
+        p_up = p_d[up]
+        R_b = R_b.at[i].set(Rb)
+        R_t = R_t.at[i].set(twist_about_z(Rb, tau_p[i]))
+        p_p = p_p.at[i].set(p_up)
+        p_d = p_d.at[i].set(p_up + Rb[:, :, 2] * L_p[i, None])
+        return (R_b, R_t, p_p, p_d), None
+
+    if rest_levels:
+        carry, _ = jax.lax.scan(level_step, carry, (jnp.asarray(idx), jnp.asarray(par)))
+    R_base, R_twisted, p_prox, p_dist = (a[:n] for a in carry)
 
     if body.root_joint != body.default_root_joint:
         # Re-rooted body: pin the frame ending at the root joint to the whole body's
@@ -139,9 +154,13 @@ def forward(body: Body, pose: Pose) -> Kinematics:
     sph_seg = np.asarray(body.sphere_segment, dtype=int)
     origins = body.sphere_origins
     centers = p_prox[sph_seg] + place(sph_seg, origins, origins[:, 2])
+    # Features from their own spheres, not gathered from all centres: a caller that needs
+    # only features (a reach) then lets XLA drop the other spheres.
     f_sph = np.asarray(body.feature_sphere, dtype=int)
-    normals = place(sph_seg[f_sph], body.feature_directions, origins[f_sph, 2])
-    features = centers[f_sph] + body.sphere_radii[f_sph, None] * normals
+    f_seg = sph_seg[f_sph]
+    normals = place(f_seg, body.feature_directions, origins[f_sph, 2])
+    f_centers = p_prox[f_seg] + place(f_seg, origins[f_sph], origins[f_sph, 2])
+    features = f_centers + body.sphere_radii[f_sph, None] * normals
     all_seg = np.arange(body.n_segments)
     centroids = p_prox + place(all_seg, body.centroids, body.centroids[:, 2])
     total = jnp.sum(body.masses)
