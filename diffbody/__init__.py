@@ -4,19 +4,20 @@ from ._body import Body as Body
 from ._body import Pose as Pose
 from ._export import (
     export_mjcf as export_mjcf,
+)
+from ._export import (
     export_urdf as export_urdf,
+)
+from ._export import (
     mujoco_joint_names as mujoco_joint_names,
+)
+from ._export import (
     mujoco_qpos as mujoco_qpos,
+)
+from ._export import (
     urdf_joint_values as urdf_joint_values,
 )
 from ._kinematics import Kinematics as Kinematics
-from ._export import (
-    export_mjcf as export_mjcf,
-    export_urdf as export_urdf,
-    mujoco_joint_names as mujoco_joint_names,
-    mujoco_qpos as mujoco_qpos,
-    urdf_joint_values as urdf_joint_values,
-)
 from ._kinematics import forward as forward
 from ._limits import (
     STOP_COLUMNS as STOP_COLUMNS,
@@ -80,6 +81,9 @@ from ._posture import (
 from ._posture import (
     pose_from_joint_positions as pose_from_joint_positions,
 )
+from ._reach import ReachResult as ReachResult
+from ._reach import Target as Target
+from ._reach import solve_reach as solve_reach
 from ._render import draw as draw
 from ._render import render as render
 from ._spine import (

@@ -11,7 +11,12 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._body import PHI, TAU, THETA, Body, Pose
-from ._orientation import azimuth_polar_to_vector, orientation_matrix, standard_twist
+from ._orientation import (
+    azimuth_polar_to_vector,
+    orientation_matrix,
+    standard_twist,
+    vector_to_azimuth_polar,
+)
 from ._rotations import matmul3, matvec3, rotate_about_z, swing_rotation, twist_about_z
 
 
@@ -59,9 +64,10 @@ def twist_fraction(z: Float[Array, "*b"], length: Float[Array, "*b"]) -> Float[A
     return jnp.where(length > 0, jnp.clip(z / safe_length, 0.0, 1.0), 0.0)
 
 
-def _bend_spine(body: Body, pose: Pose) -> Pose:
-    """The pose with its vertebra rows from Bendspine of its spine target, from rest."""
-    from ._spine import bendspine, with_spine_angles
+def spine_deviation(body: Body, spine_target: Array) -> tuple[np.ndarray, Array, Array]:
+    """Bendspine of a spine target from rest, as the swing vectors and twists of the
+    segments the spine moves (their deviation from the standard position)."""
+    from ._spine import bendspine
 
     if body.spine is None:
         raise ValueError(
@@ -69,8 +75,46 @@ def _bend_spine(body: Body, pose: Pose) -> Pose:
             '(add "spine": "spine.json" to its file, see data/SCHEMA.md)'
         )
     spine = body.spine
-    out = bendspine(spine, spine.rest, pose.spine_target, initiator=spine.initiator)
-    return with_spine_angles(body, spine, pose, out.angles)
+    seg = np.asarray([body.segment_index(s) for s in spine.segment_names])
+    out = bendspine(spine, spine.rest, spine_target, initiator=spine.initiator)
+    dev = out.angles - spine.rest  # (flexion, axial, lateral) -> w_y, tau, w_x
+    return seg, jnp.stack([dev[:, 2], dev[:, 0]], axis=-1), dev[:, 1]
+
+
+def exp_swing(w: Float[Array, "*b 2"]) -> Float[Array, "*b 3 3"]:
+    """exp of the rotation vector (w_x, w_y, 0): the swing as a matrix, smooth at zero."""
+    from ._rotations import eps_for, skew
+
+    v = jnp.concatenate([w, jnp.zeros_like(w[..., :1])], axis=-1)
+    a2 = jnp.sum(v * v, axis=-1)[..., None, None]
+    small = a2 < jnp.sqrt(eps_for(a2))
+    safe = jnp.where(small, 1.0, a2)
+    a = jnp.sqrt(safe)
+    s = jnp.where(small, 1.0 - a2 / 6.0, jnp.sin(a) / a)
+    c = jnp.where(small, 0.5 - a2 / 24.0, (1.0 - jnp.cos(a)) / safe)
+    K = skew(v)
+    return jnp.eye(3, dtype=v.dtype) + s * K + c * matmul3(K, K)
+
+
+def socket_frames_from_swing(
+    body: Body, swing: Float[Array, "n_seg 2"]
+) -> Float[Array, "n_seg 3 3"]:
+    """Base frames in their sockets from swing vectors, without passing through (theta, phi):
+    smooth at the poles of the sockets, where hanging limbs and the spine rest (DESIGN 6).
+
+    For the swing default the frame is R_rest exp(w). A limb with a table turns that frame
+    about its own Z by the table's twist relative to it, read off at the same direction.
+    """
+    R = matmul3(body.R_socket_rest, exp_swing(swing))
+    for limb in sorted(set(body.standard_kind) - {"swing"}):
+        k = np.flatnonzero([kind == limb for kind in body.standard_kind])
+        theta, phi, _ = vector_to_azimuth_polar(R[k, :, 2])
+        M = matmul3(
+            jnp.swapaxes(R[k], -1, -2),
+            orientation_matrix(theta, phi, standard_twist(theta, phi, limb)),
+        )
+        R = R.at[k].set(twist_about_z(R[k], jnp.arctan2(M[:, 1, 0], M[:, 0, 0])))
+    return R
 
 
 def forward(body: Body, pose: Pose) -> Kinematics:
@@ -85,19 +129,34 @@ def forward(body: Body, pose: Pose) -> Kinematics:
     Args:
         body: the body (its arrays may be traced: FK is differentiable in the dimensions).
         pose: `Pose` with `angles` (n_seg, 3) = (theta, phi, tau) and `position` (3,); if
-            it has a `spine_target`, the body's spine is first bent to it from rest
-            (Bendspine, initiator `body.spine.initiator`), replacing the vertebra rows.
+            it has a `spine_target`, the body's spine is bent to it from rest (Bendspine,
+            initiator `body.spine.initiator`), and the segments the spine moves take those
+            angles instead of their rows (built from swing vectors: smooth at rest).
 
     Returns:
         `Kinematics`: joint positions, frames, sphere centres and radii, feature points,
         centroids and the whole body's center of gravity.
     """
-    if pose.spine_target is not None:
-        pose = _bend_spine(body, pose)
     angles = jnp.asarray(pose.angles)
-    tau = angles[:, TAU]
-    R_parent_base = matmul3(body.R_parent_socket, socket_frames(body, angles))
-    position = jnp.asarray(pose.position, R_parent_base.dtype)
+    R_socket_base, tau = socket_frames(body, angles), angles[:, TAU]
+    if pose.spine_target is not None:
+        seg, w, twist = spine_deviation(body, jnp.asarray(pose.spine_target))
+        R_rest = body.R_socket_rest[seg]
+        R_socket_base = R_socket_base.at[seg].set(matmul3(R_rest, exp_swing(w)))
+        tau = tau.at[seg].set(twist)
+    return forward_frames(body, R_socket_base, tau, jnp.asarray(pose.position))
+
+
+def forward_frames(
+    body: Body,
+    R_socket_base: Float[Array, "n_seg 3 3"],
+    tau: Float[Array, " n_seg"],
+    position: Float[Array, "3"],
+) -> Kinematics:
+    """`forward` from each segment's base frame in its socket and its twist (the solver's
+    entry point: it builds the frames from swing vectors, see `socket_frames_from_swing`)."""
+    R_parent_base = matmul3(body.R_parent_socket, R_socket_base)
+    position = jnp.asarray(position, R_parent_base.dtype)
     # The tree is walked level by level with one lax.scan (the levels are static and padded
     # to one width; padding reads and writes a scratch slot n): a single compiled step keeps
     # compile times short, also under jacobians and solvers.
