@@ -55,6 +55,128 @@ def _info(args) -> int:
     return 0
 
 
+def _reach(args) -> int:
+    import json
+
+    import numpy as np
+
+    from ._reach import Target, solve_reach
+
+    body = _body(args)
+    target = np.asarray(args.target, float)
+    out = solve_reach(body, [Target.position(args.effector, target)], spine=not args.no_spine)
+    rest = np.asarray(body.rest_pose().angles)
+    angles = np.degrees(np.asarray(out.pose.angles))
+    residual, reached = float(out.residuals[0]), bool(out.reached[0])
+    print(f"{args.effector} -> {target.tolist()} m: residual {residual:.3g} m, reached {reached}")
+    print(f"solver status {int(out.status)} (0 = successful), {int(out.steps)} steps")
+    moved = np.max(np.abs(angles - np.degrees(rest)), axis=1)
+    main = [i for i in np.argsort(-moved)[:8] if moved[i] > 0.1]
+    print("main joint angles (theta, phi, tau) in degrees:")
+    for i in sorted(main):
+        th, ph, ta = angles[i]
+        print(f"  {body.segment_names[i]:<16} {th:8.2f} {ph:8.2f} {ta:8.2f}")
+    spine_target = out.pose.spine_target
+    if spine_target is not None:
+        spine_target = np.degrees(np.asarray(spine_target)).tolist()
+        print("  spine target (flexion, axial, lateral) deg:", [round(a, 2) for a in spine_target])
+    if args.out:
+        data = {
+            "effector": args.effector,
+            "target": target.tolist(),
+            "angles_deg": {n: angles[i].tolist() for i, n in enumerate(body.segment_names)},
+            "position": np.asarray(out.pose.position).tolist(),
+            "spine_target_deg": spine_target,
+            "residuals": np.asarray(out.residuals).tolist(),
+            "reached": np.asarray(out.reached).tolist(),
+            "status": int(out.status),
+            "steps": int(out.steps),
+        }
+        with open(args.out, "w") as f:
+            json.dump(data, f, indent=1)
+        print(f"wrote {args.out}")
+    if args.png:
+        from ._render import render
+
+        path = render(
+            body,
+            out.pose,
+            args.png,
+            ["front", "left", "perspective"],
+            title=f"diffbody {body.name}: reach {args.effector}",
+        )
+        print(f"wrote {path}")
+    return 0
+
+
+def _read_targets(path: str, k: int):
+    """Rows of x,y,z per effector (header optional) -> (n, k, 3); errors name file, row
+    and column."""
+    import csv
+
+    import numpy as np
+
+    def number(cell):
+        try:
+            return float(cell)
+        except ValueError:
+            return None
+
+    rows = []
+    with open(path, newline="") as f:
+        for line, row in enumerate(csv.reader(f), start=1):
+            row = [c.strip() for c in row]
+            if not row or all(c == "" for c in row):
+                continue
+            values = [number(c) for c in row]
+            if not rows and line == 1 and all(v is None for v in values):
+                continue  # a header
+            if len(row) != 3 * k:
+                col = min(len(row), 3 * k) + 1
+                raise ValueError(
+                    f"{path}: row {line}, column {col}: expected {3 * k} columns "
+                    f"(x,y,z for each of {k} effector(s)), got {len(row)}"
+                )
+            for col, (cell, v) in enumerate(zip(row, values), start=1):
+                if v is None:
+                    raise ValueError(f"{path}: row {line}, column {col}: not a number: {cell!r}")
+            rows.append(values)
+    return np.asarray(rows, float).reshape(-1, k, 3)
+
+
+def _batch(args) -> int:
+    import csv
+
+    from ._batch import solve_reach_batch
+    from ._reach import Target, resolve_targets
+
+    body = _body(args)
+    resolve_targets(body, [Target.position(e, [0, 0, 0]) for e in args.effector])
+    xyz = _read_targets(args.targets, len(args.effector))
+    out = solve_reach_batch(
+        body, args.effector, xyz, chunk_size=args.chunk_size, spine=not args.no_spine
+    )
+    header = ["row"]
+    for e in args.effector:
+        header += [f"{e}.residual", f"{e}.reached", f"{e}.valid"]
+    header += ["status", "steps"]
+    with open(args.out, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        for i in range(xyz.shape[0]):
+            cells = [i]
+            for j in range(len(args.effector)):
+                cells += [
+                    f"{float(out.residuals[i, j]):.9g}",
+                    int(out.reached[i, j]),
+                    int(out.valid[i, j]),
+                ]
+            w.writerow(cells + [int(out.status[i]), int(out.steps[i])])
+    n_reached = int(out.reached.all(axis=1).sum())
+    print(f"{n_reached} of {xyz.shape[0]} rows reached; wrote {args.out}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="diffbody", description="Differentiable kinematics of sphere-skinned bodies."
@@ -82,6 +204,24 @@ def main(argv: list[str] | None = None) -> int:
     body_args(p)
     p.add_argument("--names", action="store_true", help="list segments, joints and features")
     p.set_defaults(run=_info)
+
+    p = sub.add_parser("reach", help="reach one target with an effector (inverse kinematics)")
+    body_args(p)
+    p.add_argument("--effector", required=True, help="joint, feature or center_of_gravity")
+    p.add_argument("--target", nargs=3, type=float, required=True, metavar=("X", "Y", "Z"))
+    p.add_argument("--out", default=None, help="JSON to write (angles in degrees)")
+    p.add_argument("--png", default=None, help="PNG of the pose to write")
+    p.add_argument("--no-spine", action="store_true", help="keep the spine at rest")
+    p.set_defaults(run=_reach)
+
+    p = sub.add_parser("batch", help="reach every row of a CSV of targets (x,y,z per effector)")
+    body_args(p)
+    p.add_argument("targets", help="CSV: x,y,z per effector in order, header optional")
+    p.add_argument("--effector", action="append", required=True, help="repeat for several")
+    p.add_argument("--out", default="results.csv", help="CSV to write (default results.csv)")
+    p.add_argument("--chunk-size", type=int, default=4096, help="rows per compiled call")
+    p.add_argument("--no-spine", action="store_true", help="keep the spine at rest")
+    p.set_defaults(run=_batch)
 
     args = parser.parse_args(argv)
     try:

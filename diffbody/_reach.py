@@ -53,7 +53,8 @@ class Target:
     ) -> "Target":
         """Put a joint ("left_wrist"), a feature ("left_hand.palm") or "center_of_gravity"
         at `xyz` (m, world)."""
-        return cls("point", name, np.asarray(xyz, float), None, float(weight))
+        value = xyz if isinstance(xyz, jax.Array) else np.asarray(xyz, float)
+        return cls("point", name, value, None, float(weight))
 
     @classmethod
     def axis_direction(
@@ -129,7 +130,9 @@ def resolve_targets(body: Body, targets: Sequence[Target]) -> tuple[TargetSet, l
     order += [i for i, t in enumerate(targets) if t.kind == "axis"]
     ts = TargetSet(
         point_index=jnp.asarray([point_index(t.name) for t in points], int).reshape(-1),
-        point_xyz=jnp.asarray(np.asarray([t.value for t in points]).reshape(-1, 3)),
+        point_xyz=jnp.stack([jnp.asarray(t.value) for t in points]).reshape(-1, 3)
+        if points
+        else jnp.zeros((0, 3)),
         point_weight=jnp.asarray([t.weight for t in points]).reshape(-1),
         axis_segment=jnp.asarray([body.segment_index(t.name) for t in axes], int).reshape(-1),
         axis_local=jnp.asarray(np.asarray([t.axis for t in axes]).reshape(-1, 3)),
@@ -385,6 +388,8 @@ def solve_reach(
     for t in targets:
         flat.extend(t if isinstance(t, list) else [t])
     for t in flat:
+        if isinstance(t.value, jax.core.Tracer):  # under jax.grad: checked by the solve
+            continue
         if not np.all(np.isfinite(t.value)):
             raise ValueError(f"solve_reach: target {t.name!r} has a non-finite value {t.value}")
     ts, order = resolve_targets(body, flat)

@@ -62,3 +62,18 @@ def test_bad_targets_are_rejected_clearly(male50):
         db.solve_reach(male50, [db.Target.position("left_hand.plam", [0, 0, 1])])
     with pytest.raises(ValueError, match="3 numbers"):
         db.solve_reach(male50, [db.Target.position("left_wrist", [0, 1])])
+
+
+def test_implicit_gradient_of_the_reach_with_respect_to_the_target(male50, palm0):
+    """Differentiating through the solve (optimistix's implicit adjoint): where a target is
+    reached, the reached point follows the target one to one, so the Jacobian is I."""
+    import jax
+
+    palm = male50.feature_index("left_hand.palm")
+
+    def reached(t):
+        out = db.solve_reach(male50, [db.Target.position("left_hand.palm", t)])
+        return db.forward(male50, out.pose).feature_points[palm]
+
+    J = jax.jacrev(reached)(jnp.asarray(palm0 + [0.25, 0.1, 0.35]))
+    np.testing.assert_allclose(J, np.eye(3), atol=1e-4)

@@ -1,0 +1,95 @@
+"""Batch reach: equals a loop of solve_reach, chunking and sharding change nothing, NaN
+rows are flagged. One compiled batch function (chunks of 2) is shared by every test."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import diffbody as db
+from diffbody._batch import solve_reach_batch
+
+CHUNK = 2  # every batch here compiles the same function once
+ROWS = np.array([[0.3, 0.2, 1.0], [0.15, 0.3, 0.85], [0.35, 0.1, 1.15], [0.2, 0.45, 0.9]])
+
+
+@pytest.fixture(scope="module")
+def batch(male50):
+    """Four rows in two chunks."""
+    return solve_reach_batch(male50, ["left_hand.palm"], ROWS, chunk_size=CHUNK, progress=False)
+
+
+def test_batch_equals_a_loop_of_solve_reach(male50, batch):
+    assert batch.residuals.shape == (4, 1) and batch.pose.angles.shape[0] == 4
+    for i, xyz in enumerate(ROWS):
+        one = db.solve_reach(male50, [db.Target.position("left_hand.palm", xyz)])
+        np.testing.assert_allclose(batch.residuals[i], np.asarray(one.residuals), atol=1e-9)
+        assert bool(batch.reached[i, 0]) == bool(one.reached[0])
+        np.testing.assert_allclose(batch.pose.angles[i], np.asarray(one.pose.angles), atol=1e-9)
+    assert batch.reached.all()
+
+
+def test_chunks_equal_one_chunk(male50, batch):
+    one_chunk = solve_reach_batch(male50, "left_hand.palm", ROWS[2:], progress=False)
+    np.testing.assert_allclose(one_chunk.residuals, batch.residuals[2:], atol=1e-12)
+    np.testing.assert_allclose(one_chunk.pose.angles, batch.pose.angles[2:], atol=1e-12)
+    np.testing.assert_array_equal(one_chunk.reached, batch.reached[2:])
+
+
+def test_a_nan_row_is_flagged_and_the_others_solved(male50, batch, capsys):
+    rows = np.stack([ROWS[0], [np.nan, 0.2, 1.0], ROWS[1]])  # 3 rows: the last chunk is padded
+    out = solve_reach_batch(male50, ["left_hand.palm"], rows, chunk_size=CHUNK)
+    assert "3/3 solves" in capsys.readouterr().err  # the progress bar
+    np.testing.assert_array_equal(out.valid[:, 0], [True, False, True])
+    np.testing.assert_array_equal(out.reached[:, 0], [True, False, True])
+    assert all(np.all(np.isfinite(a)) for a in (out.residuals, out.pose.angles))
+    np.testing.assert_allclose(out.residuals[[0, 2]], batch.residuals[:2], atol=1e-12)
+
+
+def test_bad_input_is_rejected(male50):
+    with pytest.raises(KeyError, match="unknown effector"):
+        solve_reach_batch(male50, ["left_elbowz"], ROWS, progress=False)
+    with pytest.raises(ValueError, match=r"shape \(n, 2, 3\)"):
+        solve_reach_batch(male50, ["left_hand.palm", "left_wrist"], ROWS, progress=False)
+
+
+SHARDED = textwrap.dedent(
+    """
+    import json, jax, numpy as np, diffbody as db
+    from diffbody._batch import solve_reach_batch
+    rows = np.asarray(json.loads(input()))
+    out = solve_reach_batch(db.load_body(variant="male50"), ["left_hand.palm"], rows,
+                            chunk_size=2, progress=False)
+    print(json.dumps({"devices": len(jax.devices()), "residuals": out.residuals.tolist(),
+                      "angles": out.pose.angles.tolist(), "reached": out.reached.tolist()}))
+    """
+)
+
+
+def test_sharded_equals_unsharded(batch):
+    """Two CPU devices in a subprocess shard each chunk of 2 rows, one row per device; the
+    unsharded reference is this process's single-device `batch` (saves a second compile)."""
+    env = dict(
+        os.environ,
+        XLA_FLAGS="--xla_force_host_platform_device_count=2",
+        JAX_ENABLE_X64="1",
+        JAX_PLATFORMS="cpu",
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", SHARDED],
+        input=json.dumps(ROWS.tolist()),
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert run.returncode == 0, run.stderr
+    got = json.loads(run.stdout.strip().splitlines()[-1])
+    assert got["devices"] == 2
+    assert np.max(np.abs(np.asarray(got["residuals"]) - batch.residuals)) < 1e-9
+    assert np.max(np.abs(np.asarray(got["angles"]) - batch.pose.angles)) < 1e-9
+    np.testing.assert_array_equal(got["reached"], batch.reached)

@@ -1,0 +1,58 @@
+"""The reach and batch commands (diffbody._cli.main called directly)."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from diffbody._cli import main
+
+
+def test_reach_command(tmp_path, capsys):
+    out, png = tmp_path / "result.json", tmp_path / "pose.png"
+    argv = ["reach", "--effector", "left_hand.palm", "--target", "0.3", "0.2", "1.0"]
+    assert main(argv + ["--out", str(out), "--png", str(png)]) == 0
+    text = capsys.readouterr().out
+    assert "residual" in text and "reached True" in text and "solver status 0" in text
+    assert "left_upper_arm" in text  # a main joint angle, in degrees
+    data = json.loads(out.read_text())
+    assert data["reached"] == [True] and data["residuals"][0] < 1e-3
+    assert len(data["angles_deg"]["left_forearm"]) == 3 and len(data["position"]) == 3
+    assert len(data["spine_target_deg"]) == 3
+    assert png.stat().st_size > 0
+
+
+def test_batch_command(tmp_path, capsys):
+    targets, results = tmp_path / "targets.csv", tmp_path / "results.csv"
+    targets.write_text("x,y,z\n0.3,0.2,1.0\nnan,0.2,1.0\n0.15,0.3,0.85\n")
+    argv = ["batch", str(targets), "--effector", "left_hand.palm", "--out", str(results)]
+    assert main(argv + ["--chunk-size", "2"]) == 0
+    assert "3/3 solves" in capsys.readouterr().err
+    rows = list(csv.DictReader(results.open()))
+    assert [r["left_hand.palm.reached"] for r in rows] == ["1", "0", "1"]
+    assert [r["left_hand.palm.valid"] for r in rows] == ["1", "0", "1"]
+    assert all(np.isfinite(float(r["left_hand.palm.residual"])) for r in rows)
+    assert float(rows[0]["left_hand.palm.residual"]) < 1e-3 and "status" in rows[0]
+
+
+@pytest.mark.parametrize(
+    "content, effectors, message",
+    [
+        ("0.3,0.2,1.0\n0.3,abc,1.0\n", ["left_hand.palm"], "row 2, column 2: not a number"),
+        ("0.3,0.2,1.0\n0.3,0.2\n", ["left_hand.palm"], "row 2, column 3: expected 3 columns"),
+        ("0.3,0.2,1.0,0.1,0.1\n", ["left_hand.palm", "left_wrist"], "row 1, column 6"),
+        ("0.3,0.2,1.0\n", ["left_hand.nope"], "left_hand.nope"),
+        ("0.3,0.2,1.0\n", ["left_elbowz"], "unknown effector"),
+    ],
+)
+def test_batch_bad_input_exits_2(tmp_path, capsys, content, effectors, message):
+    targets = tmp_path / "bad.csv"
+    targets.write_text(content)
+    argv = ["batch", str(targets), "--out", str(tmp_path / "r.csv")]
+    for e in effectors:
+        argv += ["--effector", e]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert str(targets) in err or "unknown" in err
+    assert message in err
