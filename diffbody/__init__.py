@@ -81,6 +81,7 @@ from ._posture import (
 from ._posture import (
     pose_from_joint_positions as pose_from_joint_positions,
 )
+from ._batch import solve_reach_batch as solve_reach_batch
 from ._reach import ReachResult as ReachResult
 from ._reach import Target as Target
 from ._reach import solve_reach as solve_reach

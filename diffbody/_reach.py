@@ -43,7 +43,7 @@ class Target:
 
     kind: str  # "point", "axis"
     name: str  # "left_hand.palm", "left_wrist", "center_of_gravity", or a segment for axes
-    value: np.ndarray  # (3,) position (m) or direction (unit)
+    value: np.ndarray | Array  # (3,) position (m) or direction (unit); traced under jax.grad
     axis: np.ndarray | None = None  # (3,) axis in the segment's frame, for "axis"
     weight: float = 1.0
 

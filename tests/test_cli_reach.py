@@ -29,7 +29,8 @@ def test_batch_command(tmp_path, capsys):
     argv = ["batch", str(targets), "--effector", "left_hand.palm", "--out", str(results)]
     assert main(argv + ["--chunk-size", "2"]) == 0
     assert "3/3 solves" in capsys.readouterr().err
-    rows = list(csv.DictReader(results.open()))
+    with results.open(newline="") as f:
+        rows = list(csv.DictReader(f))
     assert [r["left_hand.palm.reached"] for r in rows] == ["1", "0", "1"]
     assert [r["left_hand.palm.valid"] for r in rows] == ["1", "0", "1"]
     assert all(np.isfinite(float(r["left_hand.palm.residual"])) for r in rows)
