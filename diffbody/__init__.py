@@ -1,5 +1,6 @@
 """diffbody: differentiable inverse kinematics for articulated, sphere-skinned bodies."""
 
+from ._batch import solve_reach_batch as solve_reach_batch
 from ._body import Body as Body
 from ._body import Pose as Pose
 from ._export import (
@@ -81,7 +82,6 @@ from ._posture import (
 from ._posture import (
     pose_from_joint_positions as pose_from_joint_positions,
 )
-from ._batch import solve_reach_batch as solve_reach_batch
 from ._reach import ReachResult as ReachResult
 from ._reach import Target as Target
 from ._reach import solve_reach as solve_reach
