@@ -92,8 +92,8 @@ class TargetSet(eqx.Module):
 
 
 class ReachResult(eqx.Module):
-    """What `solve_reach` returns. Targets are numbered points first, then axes, in the
-    order given."""
+    """What `solve_reach` returns; per-target arrays follow the order the targets were given
+    in (a `Target.frame` counts as two targets, its X then its Z axis)."""
 
     pose: Pose
     reached: Bool[Array, " n_targets"]  # within the tolerance (1 mm / 1 degree by default)
