@@ -269,14 +269,15 @@ class _Problem(eqx.Module):
         )
 
 
-def _residuals(problem: _Problem, x: _Unknowns, targets: TargetSet):
+def _residuals(problem: _Problem, x: _Unknowns, args: tuple[TargetSet, _Unknowns]):
     """Weighted residuals of all targets (points in m, axes as chord lengths ~ rad), and
-    the regularisation toward the start."""
+    the regularisation toward the start x0 (passed in, so the solver loop does not rebuild
+    it at every evaluation)."""
+    targets, x0 = args
     fk = problem.kinematics(x)
     points = jnp.concatenate([fk.joint_positions, fk.feature_points, fk.center_of_gravity[None]])
     p = points[targets.point_index]
     axes = jnp.einsum("kij,kj->ki", fk.R_world_twisted[targets.axis_segment], targets.axis_local)
-    x0 = problem.start()
     reg = jax.tree.map(lambda a, b: jnp.sqrt(REGULARISATION) * (a - b), x, x0)
     return (
         targets.point_weight[:, None] * (p - targets.point_xyz),
@@ -292,7 +293,8 @@ def _solve(
     tol_pos: float,
     tol_angle: float,
 ):
-    """The jitted core: one problem, finite targets (NaN ones are masked by the caller)."""
+    """The jitted core: one problem. Non-finite targets are masked here (weight 0) and
+    reported invalid, so a batch never stops on them."""
     ok_p = jnp.all(jnp.isfinite(targets.point_xyz), axis=-1)
     ok_a = jnp.all(jnp.isfinite(targets.axis_direction), axis=-1)
     # Non-finite targets take no part: weight 0 and a harmless value.
@@ -311,14 +313,13 @@ def _solve(
         return _residuals(problem, x, args)[0]
 
     # Measured on FK-generated palm targets of the default body (x64, 100 steps): Dogleg
-    # reached 10 of 12, Gauss-Newton 6, Levenberg-Marquardt crawled (its damping is badly
+    # reached 12 of 12, Gauss-Newton 6, Levenberg-Marquardt crawled (its damping is badly
     # scaled for the squashed unknowns): Dogleg's trust region is the robust choice here.
     solver = optx.Dogleg(rtol=1e-10, atol=1e-10)
-    sol = optx.least_squares(
-        fn, solver, problem.start(), args=safe, max_steps=max_steps, throw=False
-    )
+    x0 = problem.start()
+    sol = optx.least_squares(fn, solver, x0, args=(safe, x0), max_steps=max_steps, throw=False)
     pose = problem.pose(sol.value)
-    _, (p, axes) = _residuals(problem, sol.value, safe)
+    _, (p, axes) = _residuals(problem, sol.value, (safe, x0))
     res_p = jnp.linalg.norm(p - targets.point_xyz, axis=-1)
     cos = jnp.clip(jnp.sum(axes * targets.axis_direction, axis=-1), -1.0, 1.0)
     res_a = jnp.arccos(cos)
