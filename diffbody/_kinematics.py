@@ -11,12 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._body import PHI, TAU, THETA, Body, Pose
-from ._orientation import (
-    azimuth_polar_to_vector,
-    orientation_matrix,
-    standard_twist,
-    vector_to_azimuth_polar,
-)
+from ._orientation import azimuth_polar_to_vector, standard_frame, vector_to_azimuth_polar
 from ._rotations import matmul3, matvec3, rotate_about_z, swing_rotation, twist_about_z
 
 
@@ -53,7 +48,7 @@ def socket_frames(
     for limb in sorted(set(kinds) - {"swing"}):
         k = np.flatnonzero([kind == limb for kind in kinds])
         t, p = theta[k], phi[k]
-        R = R.at[k].set(orientation_matrix(t, p, standard_twist(t, p, limb)))
+        R = R.at[k].set(standard_frame(t, p, limb))
     return R
 
 
@@ -111,7 +106,7 @@ def socket_frames_from_swing(
         theta, phi, _ = vector_to_azimuth_polar(R[k, :, 2])
         M = matmul3(
             jnp.swapaxes(R[k], -1, -2),
-            orientation_matrix(theta, phi, standard_twist(theta, phi, limb)),
+            standard_frame(theta, phi, limb),
         )
         R = R.at[k].set(twist_about_z(R[k], jnp.arctan2(M[:, 1, 0], M[:, 0, 0])))
     return R
