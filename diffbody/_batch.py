@@ -23,12 +23,12 @@ from ._body import Body, Pose
 from ._reach import ReachResult, Target, TargetSet, _solve, make_problem, resolve_targets
 
 
-def _solve_rows(problem, template: TargetSet, xyz, max_steps, tol_pos, tol_angle):
+def _solve_rows(problem, template: TargetSet, xyz, max_steps, tol_pos, tol_angle, starts):
     """`_solve` vmapped over the targets' positions (xyz: (batch, k, 3))."""
 
     def one(p):
         targets = eqx.tree_at(lambda t: t.point_xyz, template, p)
-        return _solve(problem, targets, max_steps, tol_pos, tol_angle)
+        return _solve(problem, targets, max_steps, tol_pos, tol_angle, starts)
 
     return jax.vmap(one)(xyz)
 
@@ -80,7 +80,9 @@ def solve_reach_batch(
     progress: bool = True,
     devices: Sequence[jax.Device] | None = None,
     spine: bool = True,
-    max_steps: int = 100,
+    segments: Sequence[str] | None = None,
+    starts: int = 4,
+    max_steps: int = 60,
     tol_position: float = 1e-3,
 ) -> ReachResult:
     """Solve many reach problems: row i puts `effectors[j]` at `positions[i, j]`.
@@ -102,7 +104,7 @@ def solve_reach_batch(
         devices: devices to shard each chunk's rows over (default: `jax.local_devices()`;
             sharding is used when there are several). Multi-host: call
             `jax.distributed.initialize()` first, then this in every process with its rows.
-        spine, max_steps, tol_position: as in `solve_reach`.
+        spine, segments, starts, max_steps, tol_position: as in `solve_reach`.
 
     Returns:
         A `ReachResult` of host (numpy) arrays with a leading batch axis n: `reached`,
@@ -124,7 +126,7 @@ def solve_reach_batch(
             + f", got {np.shape(positions)}"
         )
     template, _ = resolve_targets(body, [Target.position(e, np.zeros(3)) for e in effectors])
-    problem = make_problem(body, init, spine=spine)
+    problem = make_problem(body, template, init, spine=spine, segments=segments)
     n = xyz.shape[0]
 
     devices = list(jax.local_devices() if devices is None else devices)
@@ -146,12 +148,19 @@ def solve_reach_batch(
         if m < chunk:  # pad with copies of the last row: same cost, dropped below
             rows = np.concatenate([rows, np.repeat(rows[-1:], chunk - m, axis=0)])
         rows = jax.device_put(jnp.asarray(rows), sharding)
-        out = _solve_rows_jit(problem, template, rows, max_steps, tol_position, 0.0)
+        out = _solve_rows_jit(problem, template, rows, max_steps, tol_position, 0.0, starts)
         parts.append(jax.tree.map(lambda a, m=m: np.asarray(a)[:m], out))
         bar.update(start + m)
     if not parts:  # n == 0: shapes from the abstract evaluation
         shapes = eqx.filter_eval_shape(
-            _solve_rows, problem, template, jnp.zeros((1, k, 3)), max_steps, tol_position, 0.0
+            _solve_rows,
+            problem,
+            template,
+            jnp.zeros((1, k, 3)),
+            max_steps,
+            tol_position,
+            0.0,
+            starts,
         )
         return jax.tree.map(lambda s: np.zeros((0,) + s.shape[1:], s.dtype), shapes)
     return jax.tree.map(lambda *a: np.concatenate(a), *parts)

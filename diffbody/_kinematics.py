@@ -92,24 +92,51 @@ def exp_swing(w: Float[Array, "*b 2"]) -> Float[Array, "*b 3 3"]:
 
 
 def socket_frames_from_swing(
-    body: Body, swing: Float[Array, "n_seg 2"]
-) -> Float[Array, "n_seg 3 3"]:
-    """Base frames in their sockets from swing vectors, without passing through (theta, phi):
-    smooth at the poles of the sockets, where hanging limbs and the spine rest (DESIGN 6).
+    body: Body, swing: Float[Array, "k 2"], idx: np.ndarray | None = None
+) -> Float[Array, "k 3 3"]:
+    """Base frames in their sockets from swing vectors, without passing through (theta, phi),
+    of segments `idx` (all when None): smooth at the poles of the sockets, where hanging
+    limbs and the spine rest (DESIGN 6).
 
     For the swing default the frame is R_rest exp(w). A limb with a table turns that frame
     about its own Z by the table's twist relative to it, read off at the same direction.
     """
-    R = matmul3(body.R_socket_rest, exp_swing(swing))
-    for limb in sorted(set(body.standard_kind) - {"swing"}):
-        k = np.flatnonzero([kind == limb for kind in body.standard_kind])
+    idx = np.arange(body.n_segments) if idx is None else np.asarray(idx)
+    kinds = [body.standard_kind[i] for i in idx]
+    R = matmul3(body.R_socket_rest[idx], exp_swing(swing))
+    # The table twists are gathered into one angle per segment and applied once: an
+    # in-place `R.at[k].set(f(R[k]))` was miscompiled by XLA on CPU when fused with a
+    # later scatter (frames off by 1e-4 rad under jit, exact eagerly).
+    twist = jnp.zeros(len(idx), R.dtype)
+    for limb in sorted(set(kinds) - {"swing"}):
+        k = np.flatnonzero([kind == limb for kind in kinds])
         theta, phi, _ = vector_to_azimuth_polar(R[k, :, 2])
-        M = matmul3(
-            jnp.swapaxes(R[k], -1, -2),
-            standard_frame(theta, phi, limb),
-        )
-        R = R.at[k].set(twist_about_z(R[k], jnp.arctan2(M[:, 1, 0], M[:, 0, 0])))
-    return R
+        M = matmul3(jnp.swapaxes(R[k], -1, -2), standard_frame(theta, phi, limb))
+        twist = twist.at[k].set(jnp.arctan2(M[:, 1, 0], M[:, 0, 0]))
+    return twist_about_z(R, twist)
+
+
+def place_on_segments(
+    body: Body, seg: np.ndarray, local: Array, z: Array, R_base: Array, tau: Array
+) -> Array:
+    """Local vectors (k, 3) on segments `seg` (k,), at heights z, turned by their share of
+    the twist tau, in the world (R_base: the segments' untwisted world frames)."""
+    turned = rotate_about_z(local, tau * twist_fraction(z, body.lengths[seg]))
+    return matvec3(R_base, turned)
+
+
+def feature_points(
+    body: Body, f: np.ndarray, R_base: Array, p_prox: Array, tau: Array
+) -> tuple[Float[Array, "k 3"], Float[Array, "k 3"]]:
+    """World points and normals of features `f` (k,), given their segments' untwisted world
+    frames (k, 3, 3), proximal joints (k, 3) and twists (k,). Computed from the features' own
+    spheres only, so a reach that needs one feature never builds the others."""
+    f_sph = np.asarray(body.feature_sphere, dtype=int)[f]
+    seg = np.asarray(body.sphere_segment, dtype=int)[f_sph]
+    origins = body.sphere_origins[f_sph]
+    normals = place_on_segments(body, seg, body.feature_directions[f], origins[:, 2], R_base, tau)
+    centers = p_prox + place_on_segments(body, seg, origins, origins[:, 2], R_base, tau)
+    return centers + body.sphere_radii[f_sph, None] * normals, normals
 
 
 def forward(body: Body, pose: Pose) -> Kinematics:
@@ -132,6 +159,13 @@ def forward(body: Body, pose: Pose) -> Kinematics:
         `Kinematics`: joint positions, frames, sphere centres and radii, feature points,
         centroids and the whole body's center of gravity.
     """
+    R_socket_base, tau = pose_frames(body, pose)
+    return forward_frames(body, R_socket_base, tau, jnp.asarray(pose.position))
+
+
+def pose_frames(body: Body, pose: Pose) -> tuple[Float[Array, "n_seg 3 3"], Float[Array, " n_seg"]]:
+    """Every segment's base frame in its socket and its twist, for a pose (the spine bent to
+    the pose's spine target when it has one)."""
     angles = jnp.asarray(pose.angles)
     R_socket_base, tau = socket_frames(body, angles), angles[:, TAU]
     if pose.spine_target is not None:
@@ -139,7 +173,7 @@ def forward(body: Body, pose: Pose) -> Kinematics:
         R_rest = body.R_socket_rest[seg]
         R_socket_base = R_socket_base.at[seg].set(matmul3(R_rest, exp_swing(w)))
         tau = tau.at[seg].set(twist)
-    return forward_frames(body, R_socket_base, tau, jnp.asarray(pose.position))
+    return R_socket_base, tau
 
 
 def forward_frames(
@@ -201,20 +235,14 @@ def forward_frames(
     joint_positions = jnp.concatenate([p_prox[:1], p_dist], axis=0)
 
     def place(seg: np.ndarray, local: Array, z: Array) -> Array:
-        """Local vectors on segments `seg`, at heights z, turned by their share of the twist."""
-        turned = rotate_about_z(local, tau[seg] * twist_fraction(z, body.lengths[seg]))
-        return matvec3(R_base[seg], turned)
+        return place_on_segments(body, seg, local, z, R_base[seg], tau[seg])
 
     sph_seg = np.asarray(body.sphere_segment, dtype=int)
     origins = body.sphere_origins
     centers = p_prox[sph_seg] + place(sph_seg, origins, origins[:, 2])
-    # Features from their own spheres, not gathered from all centres: a caller that needs
-    # only features (a reach) then lets XLA drop the other spheres.
-    f_sph = np.asarray(body.feature_sphere, dtype=int)
-    f_seg = sph_seg[f_sph]
-    normals = place(f_seg, body.feature_directions, origins[f_sph, 2])
-    f_centers = p_prox[f_seg] + place(f_seg, origins[f_sph], origins[f_sph, 2])
-    features = f_centers + body.sphere_radii[f_sph, None] * normals
+    f = np.arange(len(body.feature_names))
+    f_seg = sph_seg[np.asarray(body.feature_sphere, dtype=int)]
+    features, normals = feature_points(body, f, R_base[f_seg], p_prox[f_seg], tau[f_seg])
     all_seg = np.arange(body.n_segments)
     centroids = p_prox + place(all_seg, body.centroids, body.centroids[:, 2])
     total = jnp.sum(body.masses)

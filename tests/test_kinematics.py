@@ -279,3 +279,29 @@ def test_any_joint_as_root(male50):
     assert rise[2] > 0.05  # dorsiflexion lifts the toes
     with pytest.raises(KeyError, match="left_toe_tip"):
         male50.with_root("left_toe")
+
+
+def test_socket_frames_from_swing_agree_under_jit_with_a_later_scatter(male50):
+    """Regression: the limb tables' twist was applied in place (R.at[k].set(f(R[k]))), which
+    XLA on CPU miscompiled once fused with a later scatter: 1e-4 rad off under jit, exact
+    eagerly (seen as a reach residual that forward() did not reproduce)."""
+    from diffbody._kinematics import socket_frames, socket_frames_from_swing
+
+    idx = np.asarray([male50.segment_index(s) for s in ("left_upper_arm", "left_forearm")])
+    w = jnp.asarray([[-0.01299219, -0.0045856], [0.0, 0.14527937]])
+
+    def scattered(w):
+        R = (
+            jnp.zeros((male50.n_segments, 3, 3))
+            .at[idx]
+            .set(socket_frames_from_swing(male50, w, idx))
+        )
+        return R[idx]
+
+    eager = socket_frames_from_swing(male50, w, idx)
+    np.testing.assert_allclose(jax.jit(scattered)(w), eager, atol=1e-14)
+    # and the table frame is the standard frame at that direction (socket_frames)
+    angles = db.angles_from_swing(
+        male50, jnp.zeros((male50.n_segments, 2)).at[idx].set(w), jnp.zeros(male50.n_segments)
+    )
+    np.testing.assert_allclose(eager, socket_frames(male50, angles[idx], idx), atol=1e-12)
