@@ -74,10 +74,16 @@ def pose_from_joint_positions(
         A `Pose`; differentiable in the positions away from the poles of the sockets.
     """
     p = jnp.asarray(joint_positions)
+    return _pose_from_joints(body, p, whole_body_rotation(body, p), deviation)
+
+
+def _pose_from_joints(
+    body: Body, p: Array, W: Array, deviation: Float[ArrayLike, " n_seg"] | None
+) -> Pose:
+    """`pose_from_joint_positions` given the whole body's world rotation W (twisted frame)."""
     n = body.n_segments
     tau = jnp.zeros(n, p.dtype) if deviation is None else jnp.asarray(deviation, p.dtype)
     default = body.default_root_joint
-    W = whole_body_rotation(body, p)
     # The whole body's twist is its stance, fixed by the positions: no deviation applies.
     angles = jnp.zeros((n, 3), p.dtype).at[0].set(_angles_of_rotation(W))
     R_twisted = jnp.zeros((n, 3, 3), p.dtype).at[0].set(W)

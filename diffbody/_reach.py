@@ -32,7 +32,7 @@ from ._kinematics import (
     spine_deviation,
 )
 from ._limits import angles_from_swing, swing_vector, within_limits
-from ._posture import _angles_of_rotation, pose_from_joint_positions
+from ._posture import _angles_of_rotation, _pose_from_joints
 from ._rotations import matmul3, rot_z, skew, twist_about_z
 
 # Regularisation toward the initial posture, per unit of the free variables: it resolves
@@ -224,6 +224,9 @@ def _layout(
         while seg >= 0 and seg not in keep:
             keep.add(seg)
             seg = int(parent[seg])
+    # A hinge swings in its parent's twisted frame: resetting the parent's twist would turn
+    # the hinge plane away from a bent joint, so the parent keeps its twist.
+    keep |= {int(parent[i]) for i in range(body.n_segments) if body.limit_kind[i] == "hinge"}
     depth = {i: d for d, level in enumerate(body.levels) for i in level}
     live = []
     for i in sorted(chain, key=lambda i: (depth[i], i)):
@@ -403,17 +406,18 @@ class _Problem(eqx.Module):
 
     def standard_orientation(self, pose: Pose) -> Pose:
         """The post-projection (seed 000, DESIGN section 4): every twist no target depends on
-        goes back to the standard orientation, with all joint positions unchanged. Where
-        that would break a limit (an elbow's hinge plane turns with the upper arm's twist),
-        the solved pose is kept as it is."""
+        goes back to the standard orientation, with all joint positions unchanged. Twists
+        that carry a hinge (the upper arm's, for the elbow) stay; if a reset would still
+        break a limit, the solved pose is kept as it is."""
         b, lay = self.body, self.layout
         if not lay.project:
             return pose
         keep = np.zeros(b.n_segments, bool)
         keep[list(lay.keep_twist)] = True
-        joints = forward(b, pose).joint_positions
+        fk = forward(b, pose)
         deviation = jnp.where(keep, pose.angles[:, 2], 0.0)
-        standard = pose_from_joint_positions(b, joints, deviation).angles
+        W = fk.R_world_twisted[0]  # kept: the whole body's frame is never projected
+        standard = _pose_from_joints(b, fk.joint_positions, W, deviation).angles
         projected = Pose(
             position=pose.position,
             angles=jnp.where(keep[:, None], pose.angles, standard),
