@@ -64,13 +64,21 @@ def _reach(args) -> int:
 
     body = _body(args)
     target = np.asarray(args.target, float)
-    out = solve_reach(body, [Target.position(args.effector, target)], spine=not args.no_spine)
+    out = solve_reach(
+        body,
+        [Target.position(args.effector, target)],
+        spine=not args.no_spine,
+        segments=args.segments,
+        starts=args.starts,
+    )
     rest = np.asarray(body.rest_pose().angles)
     angles = np.degrees(np.asarray(out.pose.angles))
     residual, reached = float(out.residuals[0]), bool(out.reached[0])
     print(f"{args.effector} -> {target.tolist()} m: residual {residual:.3g} m, reached {reached}")
     print(f"solver status {int(out.status)} (0 = successful), {int(out.steps)} steps")
-    moved = np.max(np.abs(angles - np.degrees(rest)), axis=1)
+    # Angle changes wrapped into (-180, 180]: theta 179 -> -179 moved 2 degrees, not 358.
+    change = (angles - np.degrees(rest) + 180.0) % 360.0 - 180.0
+    moved = np.max(np.abs(change), axis=1)
     main = [i for i in np.argsort(-moved)[:8] if moved[i] > 0.1]
     print("main joint angles (theta, phi, tau) in degrees:")
     for i in sorted(main):
@@ -154,7 +162,13 @@ def _batch(args) -> int:
     resolve_targets(body, [Target.position(e, [0, 0, 0]) for e in args.effector])
     xyz = _read_targets(args.targets, len(args.effector))
     out = solve_reach_batch(
-        body, args.effector, xyz, chunk_size=args.chunk_size, spine=not args.no_spine
+        body,
+        args.effector,
+        xyz,
+        chunk_size=args.chunk_size,
+        spine=not args.no_spine,
+        segments=args.segments,
+        starts=args.starts,
     )
     header = ["row"]
     for e in args.effector:
@@ -205,13 +219,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--names", action="store_true", help="list segments, joints and features")
     p.set_defaults(run=_info)
 
+    def solver_args(p):
+        p.add_argument("--no-spine", action="store_true", help="keep the spine at rest")
+        p.add_argument(
+            "--segments", nargs="+", default=None, help="only these segments move (names)"
+        )
+        p.add_argument("--starts", type=int, default=4, help="solver starts (default 4)")
+
     p = sub.add_parser("reach", help="reach one target with an effector (inverse kinematics)")
     body_args(p)
     p.add_argument("--effector", required=True, help="joint, feature or center_of_gravity")
     p.add_argument("--target", nargs=3, type=float, required=True, metavar=("X", "Y", "Z"))
     p.add_argument("--out", default=None, help="JSON to write (angles in degrees)")
     p.add_argument("--png", default=None, help="PNG of the pose to write")
-    p.add_argument("--no-spine", action="store_true", help="keep the spine at rest")
+    solver_args(p)
     p.set_defaults(run=_reach)
 
     p = sub.add_parser("batch", help="reach every row of a CSV of targets (x,y,z per effector)")
@@ -220,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--effector", action="append", required=True, help="repeat for several")
     p.add_argument("--out", default="results.csv", help="CSV to write (default results.csv)")
     p.add_argument("--chunk-size", type=int, default=4096, help="rows per compiled call")
-    p.add_argument("--no-spine", action="store_true", help="keep the spine at rest")
+    solver_args(p)
     p.set_defaults(run=_batch)
 
     args = parser.parse_args(argv)
