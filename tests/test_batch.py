@@ -14,19 +14,24 @@ import diffbody as db
 from diffbody._batch import solve_reach_batch
 
 CHUNK = 2  # every batch here compiles the same function once
+# The arm alone from one start: the batching is under test, not the solver (compiles fast).
+ARM = ("left_upper_arm", "left_forearm", "left_hand")
+SOLVER = dict(segments=ARM, starts=1)
 ROWS = np.array([[0.3, 0.2, 1.0], [0.15, 0.3, 0.85], [0.35, 0.1, 1.15], [0.2, 0.45, 0.9]])
 
 
 @pytest.fixture(scope="module")
 def batch(male50):
     """Four rows in two chunks."""
-    return solve_reach_batch(male50, ["left_hand.palm"], ROWS, chunk_size=CHUNK, progress=False)
+    return solve_reach_batch(
+        male50, ["left_hand.palm"], ROWS, chunk_size=CHUNK, progress=False, **SOLVER
+    )
 
 
 def test_batch_equals_a_loop_of_solve_reach(male50, batch):
     assert batch.residuals.shape == (4, 1) and batch.pose.angles.shape[0] == 4
     for i, xyz in enumerate(ROWS):
-        one = db.solve_reach(male50, [db.Target.position("left_hand.palm", xyz)])
+        one = db.solve_reach(male50, [db.Target.position("left_hand.palm", xyz)], **SOLVER)
         np.testing.assert_allclose(batch.residuals[i], np.asarray(one.residuals), atol=1e-9)
         assert bool(batch.reached[i, 0]) == bool(one.reached[0])
         np.testing.assert_allclose(batch.pose.angles[i], np.asarray(one.pose.angles), atol=1e-7)
@@ -34,7 +39,7 @@ def test_batch_equals_a_loop_of_solve_reach(male50, batch):
 
 
 def test_chunks_equal_one_chunk(male50, batch):
-    one_chunk = solve_reach_batch(male50, "left_hand.palm", ROWS[2:], progress=False)
+    one_chunk = solve_reach_batch(male50, "left_hand.palm", ROWS[2:], progress=False, **SOLVER)
     np.testing.assert_allclose(one_chunk.residuals, batch.residuals[2:], atol=1e-12)
     np.testing.assert_allclose(one_chunk.pose.angles, batch.pose.angles[2:], atol=1e-12)
     np.testing.assert_array_equal(one_chunk.reached, batch.reached[2:])
@@ -42,7 +47,7 @@ def test_chunks_equal_one_chunk(male50, batch):
 
 def test_a_nan_row_is_flagged_and_the_others_solved(male50, batch, capsys):
     rows = np.stack([ROWS[0], [np.nan, 0.2, 1.0], ROWS[1]])  # 3 rows: the last chunk is padded
-    out = solve_reach_batch(male50, ["left_hand.palm"], rows, chunk_size=CHUNK)
+    out = solve_reach_batch(male50, ["left_hand.palm"], rows, chunk_size=CHUNK, **SOLVER)
     assert "3/3 solves" in capsys.readouterr().err  # the progress bar
     np.testing.assert_array_equal(out.valid[:, 0], [True, False, True])
     np.testing.assert_array_equal(out.reached[:, 0], [True, False, True])
@@ -62,8 +67,9 @@ SHARDED = textwrap.dedent(
     import json, jax, numpy as np, diffbody as db
     from diffbody._batch import solve_reach_batch
     rows = np.asarray(json.loads(input()))
+    arm = ("left_upper_arm", "left_forearm", "left_hand")
     out = solve_reach_batch(db.load_body(variant="male50"), ["left_hand.palm"], rows,
-                            chunk_size=2, progress=False)
+                            chunk_size=2, progress=False, segments=arm, starts=1)
     print(json.dumps({"devices": len(jax.devices()), "residuals": out.residuals.tolist(),
                       "angles": out.pose.angles.tolist(), "reached": out.reached.tolist()}))
     """

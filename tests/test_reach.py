@@ -73,7 +73,8 @@ def test_implicit_gradient_of_the_reach_with_respect_to_the_target(male50, palm0
     palm = male50.feature_index("left_hand.palm")
 
     def reached(t):
-        out = db.solve_reach(male50, [db.Target.position("left_hand.palm", t)])
+        target = [db.Target.position("left_hand.palm", t)]
+        out = db.solve_reach(male50, target, segments=ARM, starts=1)
         return db.forward(male50, out.pose).feature_points[palm]
 
     J = jax.jacrev(reached)(jnp.asarray(palm0 + [0.25, 0.1, 0.35]))
@@ -192,8 +193,10 @@ def test_the_standard_orientation_is_restored_after_the_solve(male50):
     upper, forearm = (male50.segment_index(s) for s in ("left_upper_arm", "left_forearm"))
     rest = male50.rest_pose()
     init = db.Pose(rest.position, rest.angles.at[forearm, 2].set(0.5))  # a pronated start
-    raw = db.solve_reach(male50, target, init=init, segments=ARM, standard_orientation=False)
-    out = db.solve_reach(male50, target, init=init, segments=ARM)
+    raw = db.solve_reach(
+        male50, target, init=init, segments=ARM, starts=1, standard_orientation=False
+    )
+    out = db.solve_reach(male50, target, init=init, segments=ARM, starts=1)
     assert bool(out.reached[0])
     _check_limits(male50, out.pose)
     j_raw = db.forward(male50, raw.pose).joint_positions
