@@ -141,6 +141,29 @@ class PeerResult:
         return float(np.mean(self.errors <= tol))
 
 
+def _result(
+    package: str,
+    settings: str,
+    q: np.ndarray,
+    reached: np.ndarray,
+    targets_world: np.ndarray,
+    setup_s: float,
+    run_s: float,
+) -> PeerResult:
+    """A peer's answers with their errors and rate (`package`: its PyPI name)."""
+    return PeerResult(
+        name=package.replace("-", "_"),
+        version=importlib.metadata.version(package),
+        settings=settings,
+        joint_values=q,
+        reached=reached,
+        errors=np.linalg.norm(reached - targets_world, axis=-1),
+        setup_s=setup_s,
+        run_s=run_s,
+        solves_per_s=len(targets_world) / run_s,
+    )
+
+
 def _xml_float(*values: float) -> str:
     """Numbers as XML text, each exactly as the float64 it is."""
     return " ".join(repr(float(v)) for v in values)
@@ -231,17 +254,15 @@ def solve_ikpy(chain: ArmChain, targets_world: np.ndarray, seed_q: np.ndarray) -
 
     q = np.stack([full[1:-1] for full in answers])
     reached = np.stack([ikpy_palm(ik_chain, chain, qi) for qi in q])
-    return PeerResult(
-        name="ikpy",
-        version=importlib.metadata.version("ikpy"),
-        settings="one target at a time from the seed; inverse_kinematics defaults: position "
+    return _result(
+        "ikpy",
+        "one target at a time from the seed; inverse_kinematics defaults: position "
         "only, NumPy backend, scipy least_squares (TRF, finite differences, default tolerances)",
-        joint_values=q,
-        reached=reached,
-        errors=np.linalg.norm(reached - targets_world, axis=-1),
-        setup_s=setup_s,
-        run_s=run_s,
-        solves_per_s=len(targets) / run_s,
+        q,
+        reached,
+        targets_world,
+        setup_s,
+        run_s,
     )
 
 
@@ -340,19 +361,17 @@ def solve_pytorch_kinematics(
         torch.set_num_threads(previous_threads)
 
     reached = pk_palm(_pk_chain(chain, torch.float64), chain, q)
-    return PeerResult(
-        name="pytorch_kinematics",
-        version=importlib.metadata.version("pytorch-kinematics"),
-        settings=f"PseudoInverseIK, float32, CPU ({used_threads} thread(s)), all targets at "
+    return _result(
+        "pytorch-kinematics",
+        f"PseudoInverseIK, float32, CPU ({used_threads} thread(s)), all targets at "
         f"once; {retries} starts (seed + uniform in URDF limits), <= {max_iterations} "
         f"iterations, position only, tolerance {PK_POS_TOLERANCE:g} m, library defaults "
         "otherwise",
-        joint_values=q,
-        reached=reached,
-        errors=np.linalg.norm(reached - targets_world, axis=-1),
-        setup_s=setup_s,
-        run_s=run_s,
-        solves_per_s=len(targets) / run_s,
+        q,
+        reached,
+        targets_world,
+        setup_s,
+        run_s,
     )
 
 
