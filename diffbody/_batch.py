@@ -23,18 +23,18 @@ from ._body import Body, Pose
 from ._reach import ReachResult, Target, TargetSet, _solve, make_problem, resolve_targets
 
 
-def _solve_rows(problem, template: TargetSet, xyz, max_steps, tol_pos, tol_angle, starts):
+def _solve_rows(problem, template: TargetSet, xyz, max_steps, tol_pos, tol_angle, first, starts):
     """`_solve` vmapped over the targets' positions (xyz: (batch, k, 3))."""
 
     def one(p):
         targets = eqx.tree_at(lambda t: t.point_xyz, template, p)
-        return _solve(problem, targets, max_steps, tol_pos, tol_angle, starts)
+        return _solve(problem, targets, max_steps, tol_pos, tol_angle, starts, True, first)
 
     return jax.vmap(one)(xyz)
 
 
-# One compiled function per (body structure, k, chunk size, settings), shared by all chunks
-# and by all calls with the same shapes.
+# One compiled function per (body structure, k, chunk size, settings), shared by all chunks,
+# both passes (the starts are traced) and all calls with the same shapes.
 _solve_rows_jit = eqx.filter_jit(_solve_rows)
 
 
@@ -50,8 +50,8 @@ def _duration(s: float) -> str:
 class _Progress:
     """A one-line progress bar on stderr: solves done / total, rate, ETA."""
 
-    def __init__(self, total: int, enabled: bool, width: int = 30):
-        self.total, self.enabled, self.width = total, enabled, width
+    def __init__(self, total: int, enabled: bool, label: str = "reach", width: int = 30):
+        self.total, self.enabled, self.label, self.width = total, enabled, label, width
         self.t0 = time.perf_counter()
 
     def update(self, done: int) -> None:
@@ -64,7 +64,7 @@ class _Progress:
         bar = "#" * fill + "." * (self.width - fill)
         end = "\n" if done >= self.total else ""
         sys.stderr.write(
-            f"\rreach [{bar}] {done}/{self.total} solves, {rate:.3g}/s, "
+            f"\r{self.label} [{bar}] {done}/{self.total} solves, {rate:.3g}/s, "
             f"ETA {_duration(eta)}   {end}"
         )
         sys.stderr.flush()
@@ -81,8 +81,8 @@ def solve_reach_batch(
     devices: Sequence[jax.Device] | None = None,
     spine: bool = True,
     segments: Sequence[str] | None = None,
-    starts: int = 4,
-    max_steps: int = 60,
+    starts: int = 8,
+    max_steps: int = 30,
     tol_position: float = 1e-3,
 ) -> ReachResult:
     """Solve many reach problems: row i puts `effectors[j]` at `positions[i, j]`.
@@ -133,34 +133,58 @@ def solve_reach_batch(
     n_dev = len(devices)
     chunk = max(1, min(int(chunk_size), n))
     chunk = -(-chunk // n_dev) * n_dev  # a multiple of the device count
-    sharding = None
     if n_dev > 1:
         mesh = jax.sharding.Mesh(np.asarray(devices), ("batch",))
         sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
     else:
         sharding = jax.sharding.SingleDeviceSharding(devices[0])
 
-    bar = _Progress(n, progress)
-    parts = []
-    for start in range(0, n, chunk):
-        rows = xyz[start : start + chunk]
-        m = rows.shape[0]
-        if m < chunk:  # pad with copies of the last row: same cost, dropped below
-            rows = np.concatenate([rows, np.repeat(rows[-1:], chunk - m, axis=0)])
-        rows = jax.device_put(jnp.asarray(rows), sharding)
-        out = _solve_rows_jit(problem, template, rows, max_steps, tol_position, 0.0, starts)
-        parts.append(jax.tree.map(lambda a, m=m: np.asarray(a)[:m], out))
-        bar.update(start + m)
-    if not parts:  # n == 0: shapes from the abstract evaluation
+    def solve(rows: np.ndarray, chunk: int, first: int, last: int, label: str) -> ReachResult:
+        """Rows through the compiled solve in chunks (the last one padded with copies of
+        its last row, dropped after), from starts first, ..., last - 1 (traced: one
+        compiled function for both passes)."""
+        first, last = jnp.asarray(first), jnp.asarray(last)
+        bar = _Progress(len(rows), progress, label)
+        parts = []
+        for at in range(0, len(rows), chunk):
+            part = rows[at : at + chunk]
+            m = part.shape[0]
+            if m < chunk:
+                part = np.concatenate([part, np.repeat(part[-1:], chunk - m, axis=0)])
+            part = jax.device_put(jnp.asarray(part), sharding)
+            out = _solve_rows_jit(
+                problem, template, part, max_steps, tol_position, 0.0, first, last
+            )
+            parts.append(jax.tree.map(lambda a, m=m: np.asarray(a)[:m], out))
+            bar.update(at + m)
+        return jax.tree.map(lambda *a: np.concatenate(a), *parts)
+
+    if n == 0:  # shapes from the abstract evaluation
         shapes = eqx.filter_eval_shape(
-            _solve_rows,
-            problem,
-            template,
-            jnp.zeros((1, k, 3)),
-            max_steps,
-            tol_position,
-            0.0,
-            starts,
+            _solve_rows, problem, template, jnp.zeros((1, k, 3)), max_steps, tol_position, 0.0, 0, 1
         )
         return jax.tree.map(lambda s: np.zeros((0,) + s.shape[1:], s.dtype), shapes)
-    return jax.tree.map(lambda *a: np.concatenate(a), *parts)
+    # Two passes: every row from the initial posture (most are reached there), then the
+    # rest from the other starts, in smaller chunks (a power of two, at least an eighth of
+    # a chunk: a few compiled shapes at most). Under vmap a chunk runs as many starts as
+    # its hardest row, so the hard rows are solved apart.
+    out = solve(xyz, chunk, 0, 1, "reach")
+    todo = np.flatnonzero(np.any(out.valid & ~out.reached, axis=1))
+    if starts > 1 and len(todo):
+        small = max(chunk // 8, 1 << (len(todo) - 1).bit_length())
+        small = -(-min(small, chunk) // n_dev) * n_dev
+        retry = solve(xyz[todo], small, 1, starts, "retry")
+        cost = np.sum(np.where(out.valid, out.residuals, 0.0) ** 2, axis=1)
+        cost_retry = np.sum(np.where(retry.valid, retry.residuals, 0.0) ** 2, axis=1)
+        take = np.all(retry.reached | ~retry.valid, axis=1) | (cost_retry < cost[todo])
+        steps = out.steps[todo] + retry.steps
+        rows = todo[take]
+        out = jax.tree.map(lambda a, r: _put(a, rows, r[take]), out, retry)
+        out = eqx.tree_at(lambda o: o.steps, out, _put(out.steps, todo, steps))
+    return out
+
+
+def _put(a: np.ndarray, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
+    a = a.copy()
+    a[rows] = values
+    return a

@@ -224,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument(
             "--segments", nargs="+", default=None, help="only these segments move (names)"
         )
-        p.add_argument("--starts", type=int, default=4, help="solver starts (default 4)")
+        p.add_argument("--starts", type=int, default=8, help="most solver starts (default 8)")
 
     p = sub.add_parser("reach", help="reach one target with an effector (inverse kinematics)")
     body_args(p)

@@ -66,8 +66,10 @@ def test_bad_targets_are_rejected_clearly(male50):
 
 
 def test_implicit_gradient_of_the_reach_with_respect_to_the_target(male50, palm0):
-    """Differentiating through the solve (optimistix's implicit adjoint): where a target is
-    reached, the reached point follows the target one to one, so the Jacobian is I."""
+    """Reverse mode through the solve (the implicit function theorem at the optimum): where a
+    target is reached, the reached point follows the target one to one, so the Jacobian is
+    I, up to the light pull toward init (1e-6 per unit, here about 1e-4 off I: the
+    stretched arm's smallest singular values are ~0.1)."""
     import jax
 
     palm = male50.feature_index("left_hand.palm")
@@ -78,7 +80,7 @@ def test_implicit_gradient_of_the_reach_with_respect_to_the_target(male50, palm0
         return db.forward(male50, out.pose).feature_points[palm]
 
     J = jax.jacrev(reached)(jnp.asarray(palm0 + [0.25, 0.1, 0.35]))
-    np.testing.assert_allclose(J, np.eye(3), atol=1e-4)
+    np.testing.assert_allclose(J, np.eye(3), atol=1e-3)
 
 
 ARM = ("left_upper_arm", "left_forearm", "left_hand")
@@ -141,10 +143,10 @@ def test_thousands_of_reach_results_hold_every_limit(male50, arm_batch):
 
 
 def test_fk_generated_targets_are_reached(arm_batch):
-    """Measured 99.0 % at 1 mm (4 starts, 60 steps); the misses are local minima."""
+    """At least 99.5 % within 1 mm with the defaults (up to 8 starts of 30 steps)."""
     out, _ = arm_batch
     rate = out.reached[:1000, 0].mean()
-    assert rate >= 0.98, rate
+    assert rate >= 0.995, rate
     assert np.median(out.residuals[:1000, 0]) < 1e-5
 
 
@@ -201,7 +203,7 @@ def test_the_standard_orientation_is_restored_after_the_solve(male50):
     _check_limits(male50, out.pose)
     j_raw = db.forward(male50, raw.pose).joint_positions
     j_out = db.forward(male50, out.pose).joint_positions
-    np.testing.assert_allclose(j_out, j_raw, atol=1e-9)
+    np.testing.assert_allclose(j_out, j_raw, atol=1e-8)  # float64 rounding of a re-pose
     assert abs(float(raw.pose.angles[forearm, 2])) > 0.1
     assert float(out.pose.angles[forearm, 2]) == 0.0
     np.testing.assert_allclose(out.pose.angles[upper], raw.pose.angles[upper], atol=1e-12)
