@@ -147,7 +147,7 @@ def test_fk_generated_targets_are_reached(arm_batch):
     out, _ = arm_batch
     rate = out.reached[:1000, 0].mean()
     assert rate >= 0.995, rate
-    assert np.median(out.residuals[:1000, 0]) < 1e-5
+    assert np.median(out.residuals[:1000, 0]) < 1e-4  # 30 steps: tens of micrometres
 
 
 def test_targets_beyond_the_arm_are_flagged(male50, arm_batch):
