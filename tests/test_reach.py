@@ -162,9 +162,10 @@ def test_targets_beyond_the_arm_are_flagged(male50, arm_batch):
 
 
 def test_implicit_gradient_with_respect_to_a_dimension_matches_finite_differences(male50):
-    """How the solved arm changes when the forearm grows: jax.jacfwd through the solve
-    (the implicit function theorem at the optimum) against central differences of two solves. The targets
-    (palm position and the hand's full frame: 9 residuals, 7 unknowns) fix the solution."""
+    """How the solved arm changes when the forearm grows: jax.jacfwd through the solve (the
+    implicit function theorem at the optimum) against central differences of two solves.
+    The targets (palm position and the hand's full frame: 9 residuals, 7 unknowns) fix the
+    solution."""
     import equinox as eqx
 
     true = db.Pose(male50.rest_position, _arm_angles(male50, np.random.default_rng(3), 1)[0])
