@@ -4,6 +4,23 @@ import argparse
 import sys
 
 
+def keep_compiled() -> None:
+    """Turn on JAX's persistent compilation cache for the command line, so that a repeated
+    `reach` or `batch` reuses the solver an earlier run compiled (the README's reach: 33 s
+    down to 12 s on 2 cores; tracing is what remains). The folder is
+    $JAX_COMPILATION_CACHE_DIR when set, else $XDG_CACHE_HOME/diffbody/jax
+    (~/.cache/diffbody/jax); DIFFBODY_NO_CACHE=1 leaves the cache off."""
+    import os
+    from pathlib import Path
+
+    import jax
+
+    if os.environ.get("DIFFBODY_NO_CACHE") == "1" or jax.config.jax_compilation_cache_dir:
+        return
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    jax.config.update("jax_compilation_cache_dir", str(base / "diffbody" / "jax"))
+
+
 def _body(args):
     from ._loading import load_body
 
@@ -245,6 +262,8 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(run=_batch)
 
     args = parser.parse_args(argv)
+    if argv is None and args.command in ("reach", "batch"):
+        keep_compiled()
     try:
         return args.run(args)
     except (ValueError, KeyError, FileNotFoundError) as e:

@@ -2,6 +2,9 @@
 
 import csv
 import json
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -58,3 +61,29 @@ def test_batch_bad_input_exits_2(tmp_path, capsys, content, effectors, message):
     err = capsys.readouterr().err
     assert str(targets) in err or "unknown" in err
     assert message in err
+
+
+CACHE_DIR = "import jax; from diffbody._cli import keep_compiled; keep_compiled(); "
+CACHE_DIR += "print(jax.config.jax_compilation_cache_dir)"
+
+
+@pytest.mark.parametrize(
+    "env, expected",
+    [
+        ({}, "{xdg}/diffbody/jax"),
+        ({"JAX_COMPILATION_CACHE_DIR": "{xdg}/mine"}, "{xdg}/mine"),
+        ({"DIFFBODY_NO_CACHE": "1"}, "None"),
+    ],
+)
+def test_the_command_line_keeps_compiled_solvers(tmp_path, env, expected):
+    """The command line's persistent compilation cache: where it goes, and how to turn it
+    off (a subprocess: the setting is global to a process)."""
+    clean = {k: v for k, v in os.environ.items() if k not in ("JAX_COMPILATION_CACHE_DIR",)}
+    clean.pop("DIFFBODY_NO_CACHE", None)
+    clean["XDG_CACHE_HOME"] = str(tmp_path)
+    clean.update({k: v.format(xdg=tmp_path) for k, v in env.items()})
+    run = subprocess.run(
+        [sys.executable, "-c", CACHE_DIR], env=clean, capture_output=True, text=True, timeout=300
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip().splitlines()[-1] == expected.format(xdg=tmp_path)
