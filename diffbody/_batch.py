@@ -90,9 +90,11 @@ def solve_reach_batch(
     The same problem as `solve_reach` with position targets only, vmapped: the rows go
     through one jit-compiled solve in chunks of `chunk_size` (the last chunk is padded and
     the padding dropped, so every chunk reuses the same compiled function and memory stays
-    bounded by one chunk). Rows with a NaN or infinite coordinate are flagged per target
-    (`valid` and `reached` False, residual 0) and never raise or leak NaN; the other targets
-    of that row are still solved.
+    bounded by one chunk). Two passes: every row from `init`, then the rows with a target
+    missed from the other starts in turn, in smaller chunks (under vmap a chunk runs as many
+    starts as its hardest row). Each row's result is what `solve_reach` gives it. Rows with
+    a NaN or infinite coordinate are flagged per target (`valid` and `reached` False,
+    residual 0) and never raise or leak NaN; the other targets of that row are still solved.
 
     Args:
         body: the body.
@@ -144,6 +146,7 @@ def solve_reach_batch(
         its last row, dropped after), from starts first, ..., last - 1 (traced: one
         compiled function for both passes)."""
         first, last = jnp.asarray(first), jnp.asarray(last)
+        settings = jnp.asarray(tol_position), jnp.asarray(0.0)
         bar = _Progress(len(rows), progress, label)
         parts = []
         for at in range(0, len(rows), chunk):
@@ -152,9 +155,7 @@ def solve_reach_batch(
             if m < chunk:
                 part = np.concatenate([part, np.repeat(part[-1:], chunk - m, axis=0)])
             part = jax.device_put(jnp.asarray(part), sharding)
-            out = _solve_rows_jit(
-                problem, template, part, max_steps, tol_position, 0.0, first, last
-            )
+            out = _solve_rows_jit(problem, template, part, max_steps, *settings, first, last)
             parts.append(jax.tree.map(lambda a, m=m: np.asarray(a)[:m], out))
             bar.update(at + m)
         return jax.tree.map(lambda *a: np.concatenate(a), *parts)

@@ -577,16 +577,16 @@ def _solve(
     problem: _Problem,
     targets: TargetSet,
     max_steps: int,
-    tol_pos: float,
-    tol_angle: float,
+    tol_pos: float | Array,
+    tol_angle: float | Array,
     starts: int | Array = 1,
-    standard_orientation: bool = True,
+    standard_orientation: bool | Array = True,
     first: int | Array = 0,
 ):
     """The jitted core: one problem, from starts `first`, ..., `starts - 1` in turn (see
     `_multistart`). Non-finite targets are masked here (weight 0) and reported invalid, so
     a batch never stops on them. Gradients of the solution: the implicit function theorem
-    at the kept optimum (`optx.implicit_jvp`), forward and reverse mode."""
+    at the kept optimum (optimistix's `implicit_jvp`), forward and reverse mode."""
     ok_p = jnp.all(jnp.isfinite(targets.point_xyz), axis=-1)
     ok_a = jnp.all(jnp.isfinite(targets.axis_direction), axis=-1)
     # Non-finite targets take no part: weight 0 and a harmless value.
@@ -613,8 +613,9 @@ def _solve(
     )
     res_p, res_a = _target_errors(problem, sol_value, args, targets)
     pose = problem.pose(sol_value)
-    if standard_orientation:
-        pose = problem.standard_orientation(pose)
+    if standard_orientation is not False:  # a traced flag selects at run time
+        projected = problem.standard_orientation(pose)
+        pose = jax.tree.map(lambda a, b: jnp.where(standard_orientation, a, b), projected, pose)
     residuals = jnp.concatenate([res_p, res_a])
     valid = jnp.concatenate([ok_p, ok_a])
     reached = valid & jnp.concatenate([res_p <= tol_pos, res_a <= tol_angle])
@@ -719,7 +720,10 @@ def solve_reach(
             raise ValueError(f"solve_reach: target {t.name!r} has a non-finite value {t.value}")
     ts, order = resolve_targets(body, flat)
     problem = make_problem(body, ts, init, spine=spine, free_root=free_root, segments=segments)
-    out = _solve_jit(problem, ts, max_steps, tol_position, tol_angle, starts, standard_orientation)
+    # Only max_steps is static: other settings are traced, so that changing them reuses the
+    # compiled solve (a first call costs tens of seconds).
+    settings = (tol_position, tol_angle, starts, standard_orientation)
+    out = _solve_jit(problem, ts, max_steps, *(jnp.asarray(a) for a in settings))
     back = np.argsort(order)
     return eqx.tree_at(
         lambda r: (r.reached, r.residuals, r.valid),
