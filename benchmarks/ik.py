@@ -201,6 +201,7 @@ def main() -> None:
             f"{f'starts={starts}':>18} {first_s[starts]:>13.2f} {warm_s[starts] * 1e3:>15.2f} "
             f"{reached:>7.1%}"
         )
+    print("  (starts is traced: the second setting reuses the first's compiled solve)")
     body_row = batch_row(
         db, body, palm_targets(args.n_body, seed=2), args.chunk_size, "default, starts=8"
     )
@@ -229,7 +230,8 @@ def main() -> None:
     )
     for name, seconds in (
         ("arm batch", default.setup_s),
-        ("whole-body single, first call", first_s[8]),
+        # starts is traced: the first setting timed compiles for both.
+        ("whole-body single, first call", max(first_s.values())),
     ):
         goal(
             f"first compile < {GOAL_COMPILE_S:g} s: {name}",
