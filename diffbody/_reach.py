@@ -518,8 +518,8 @@ def _multistart(inputs):
     Start 0 is the initial posture (so a reachable target keeps the most natural posture);
     start k > 0 is a fixed pseudo-random point of the free variables' range (the same for
     every problem: results are reproducible), with the root's placement at init. Most
-    targets cost one solve, none more than `starts`. A global function, as
-    `optx.implicit_jvp` requires.
+    targets cost one solve, none more than `starts`. A global function, as optimistix's
+    `implicit_jvp` requires.
     """
     problem, args, valid, max_steps, tol_pos, tol_angle, first, starts = inputs
     targets, x0, _ = args
