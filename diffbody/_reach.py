@@ -4,7 +4,7 @@ Targets put named points of the body (joints, sphere features, the center of gra
 positions and segment axes along directions. The unknowns are every movable segment's swing
 vector and twist, the spine as its Bendspine target 3-vector (so the 54 vertebra angles move
 as a spine), and optionally the whole body's placement. Joint limits hold exactly: each
-unknown is a bounded map of a free variable (a logistic squash into [lo, hi], the swing then
+unknown is a bounded map of a free variable (mid + half sin(u) into [lo, hi], the swing then
 pulled radially into its cone), so the solver cannot leave the admissible set.
 """
 
@@ -33,7 +33,6 @@ from ._kinematics import (
     forward,
     forward_frames,
     pose_frames,
-    socket_frames,
     socket_frames_from_swing,
     spine_deviation,
 )
@@ -296,7 +295,7 @@ class _Problem(eqx.Module):
     init: Pose
     init_swing: Array  # (n_seg, 2)
 
-    def state(self, x: _Unknowns, idx: Sequence[int] | np.ndarray):
+    def state(self, x: _Unknowns, start: _Start, idx: Sequence[int] | np.ndarray):
         """Swing vectors (k, 2) and twists (k,) of segments `idx` (which hold every moving
         one), the whole body's base frame, position and spine target of the unknowns: box
         map, then the radial pull into the cone, so every limit holds exactly. Only the
@@ -317,7 +316,7 @@ class _Problem(eqx.Module):
         safe = jnp.where(over, norm2, 1.0)
         w = w * jnp.where(over, b.swing_max[idx] / jnp.sqrt(safe), 1.0)[:, None]
         tau = self.init.angles[idx, 2].at[kt].set(_squash(x.twist, b.twist_lo[ts], b.twist_hi[ts]))
-        base0 = socket_frames(b, self.init.angles[:1], np.asarray([0]))[0]
+        base0 = start.R_socket_base[0]  # the start's, built once per solve
         position = self.init.position
         if lay.root:
             base0 = _rotvec_to_matrix(x.root[3:]) @ base0
@@ -331,7 +330,7 @@ class _Problem(eqx.Module):
         """Base frames in their sockets and twists of segments `idx` for the unknowns: from
         swing vectors (smooth at the poles) where they move, from the start otherwise."""
         b, lay = self.body, self.layout
-        w, tau, base0, position, spine_target = self.state(x, idx)
+        w, tau, base0, position, spine_target = self.state(x, start, idx)
         moving = set(lay.swing_x + lay.swing_y + lay.twist)
         k_mov = np.asarray([k for k, i in enumerate(idx) if i in moving], int)
         k_tw = np.asarray([k for k, i in enumerate(idx) if i in lay.twist], int)
@@ -408,9 +407,10 @@ class _Problem(eqx.Module):
             jnp.stack(axes) if axes else jnp.zeros((0, 3, 3)),
         )
 
-    def pose(self, x: _Unknowns) -> Pose:
+    def pose(self, x: _Unknowns, start: _Start) -> Pose:
         """The public pose of the unknowns (theta, phi, tau rows; the spine as its target)."""
-        w, tau, base0, position, spine_target = self.state(x, range(self.body.n_segments))
+        n = self.body.n_segments
+        w, tau, base0, position, spine_target = self.state(x, start, range(n))
         angles = angles_from_swing(self.body, w, tau)
         angles = angles.at[0].set(_angles_of_rotation(base0 @ rot_z(tau[0])))
         if spine_target is None:
@@ -612,10 +612,9 @@ def _solve(
         lx.AutoLinearSolver(well_posed=None),
     )
     res_p, res_a = _target_errors(problem, sol_value, args, targets)
-    pose = problem.pose(sol_value)
-    if standard_orientation is not False:  # a traced flag selects at run time
-        projected = problem.standard_orientation(pose)
-        pose = jax.tree.map(lambda a, b: jnp.where(standard_orientation, a, b), projected, pose)
+    pose = problem.pose(sol_value, start)
+    projected = problem.standard_orientation(pose)  # selected at run time: the flag is traced
+    pose = jax.tree.map(lambda a, b: jnp.where(standard_orientation, a, b), projected, pose)
     residuals = jnp.concatenate([res_p, res_a])
     valid = jnp.concatenate([ok_p, ok_a])
     reached = valid & jnp.concatenate([res_p <= tol_pos, res_a <= tol_angle])
