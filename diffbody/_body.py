@@ -1,4 +1,5 @@
-"""The body model (seed 000, DESIGN section 2): segments, joints, spheres, features, limits.
+"""The body model (seed 000, DESIGN section 2): segments, joints, spheres, features, limits,
+and the spine database (seed 004) that drives its vertebrae.
 
 A `Body` is an immutable pytree. Its static fields (names, parent indices, levels of the
 tree, kinds) are compile-time constants; its arrays (lengths, frames, limits, spheres,
@@ -9,18 +10,17 @@ explicit: segment 0 is always "whole_body" and joint 0 always "center_of_gravity
 
 import dataclasses
 import difflib
-from typing import TYPE_CHECKING
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-if TYPE_CHECKING:
-    from ._spine import Spine
+from ._orientation import vector_to_azimuth_polar
 
 WHOLE_BODY = "whole_body"
 CENTER_OF_GRAVITY = "center_of_gravity"
+CENTER_OF_GRAVITY_INDEX = 0  # joint 0: translates the whole body
 # Columns of a pose's angle array.
 THETA, PHI, TAU = 0, 1, 2
 
@@ -46,6 +46,36 @@ class Pose(eqx.Module):
     # Optional Bendspine target (rad, the sum of the spine's joint angles): when given,
     # `forward` bends the body's spine database to it from rest and overrides the vertebra rows.
     spine_target: Float[Array, "3"] | None = None
+
+
+class Spine(eqx.Module):
+    """A spine database (seed 004, "Spine database"): per joint the rest angles and the
+    limits of the three rotations (flexion, axial, lateral; see `diffbody.bendspine`), disc
+    heights and flexion-axis offsets; per vertebra its size. Build it with
+    `diffbody.load_spine`."""
+
+    joint_names: tuple[str, ...] = eqx.field(static=True)  # "C7_T1", ..., "L5_S1"
+    initiator: int = eqx.field(static=True)  # default initiator of a Pose's spine_target
+    segment_names: tuple[str, ...] = eqx.field(static=True)  # body segment each joint moves
+    vertebra_names: tuple[str, ...] = eqx.field(static=True)  # "T1", ..., "L5"
+    rest: Float[Array, "n_joint 3"]  # rad, the standing posture
+    lower: Float[Array, "n_joint 3"]  # rad, limits (absolute joint angles)
+    upper: Float[Array, "n_joint 3"]  # rad
+    disc_heights: Float[Array, " n_joint"]  # m
+    flexion_axis_offsets: Float[Array, "n_joint 2"]  # m, (x forward, z up) from the disc centre
+    vertebra_sizes: Float[Array, "n_vert 3"]  # m, depth (x), breadth (y), height (z)
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint_names)
+
+    def joint_index(self, name: str) -> int:
+        """Index of a spine joint ("T6_T7") or of the vertebra it moves ("T6", "neck")."""
+        if name in self.joint_names:
+            return self.joint_names.index(name)
+        if name in self.segment_names:
+            return self.segment_names.index(name)
+        raise unknown_name_error("spine joint", name, self.joint_names + self.segment_names)
 
 
 class Body(eqx.Module):
@@ -90,7 +120,7 @@ class Body(eqx.Module):
     enclosure_radii: Float[Array, " n_seg"]  # m
     rest_position: Float[Array, "3"]  # m, the root joint in the standard position
     R_world_pin_rest: Float[Array, "3 3"]  # pinned frame at the root joint, standard position
-    spine: "Spine | None" = None  # the spine database driving the vertebrae, if any
+    spine: Spine | None = None  # the spine database driving the vertebrae, if any
 
     # --- name lookups (host side, outside jit) -------------------------------------------
     @property
@@ -149,8 +179,6 @@ class Body(eqx.Module):
         """The standard position: upright, feet flat on the ground (z = 0), toes forward,
         arms at the sides with palms toward the thighs, the root joint above the world
         origin, facing +X."""
-        from ._orientation import vector_to_azimuth_polar
-
         d = self.R_socket_rest[:, :, 2]
         theta, phi, _ = vector_to_azimuth_polar(d)
         angles = jnp.stack([theta, phi, jnp.zeros_like(theta)], axis=-1)
@@ -198,6 +226,3 @@ def rest_geometry(body: Body) -> tuple[np.ndarray, np.ndarray]:
         "kij,kj->ki", R[seg], np.asarray(body.sphere_origins)
     )
     return p, centers
-
-
-CENTER_OF_GRAVITY_INDEX = 0

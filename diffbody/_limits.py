@@ -15,7 +15,6 @@ from ._body import PHI, TAU, THETA, Body, Pose
 from ._orientation import azimuth_polar_to_vector, vector_to_azimuth_polar
 from ._rotations import eps_for
 
-N_STOP = 7
 STOP_COLUMNS = (
     "swing_x above",
     "swing_x below",
@@ -94,6 +93,14 @@ def stop_violation(body: Body, pose: Pose) -> Float[Array, "n_seg 7"]:
     )
 
 
-def within_limits(body: Body, pose: Pose, tol: float = 1e-9) -> Bool[Array, " n_seg"]:
-    """Per segment: True where the pose is admissible (every violation <= tol)."""
-    return jnp.all(stop_violation(body, pose) <= tol, axis=-1)
+def within_limits(body: Body, pose: Pose, tol: float | None = None) -> Bool[Array, " n_seg"]:
+    """Per segment: True where the pose is admissible (every violation <= tol, in rad).
+
+    The default tol is 256 eps of the computation's dtype (3e-5 rad in float32, 6e-14 rad in
+    float64): a pose exactly on a limit rounds to violations of up to ~40 eps, the rest pose
+    included, so a bound below float32 rounding would reject it.
+    """
+    violation = stop_violation(body, pose)
+    if tol is None:
+        tol = 256 * float(jnp.finfo(violation.dtype).eps)
+    return jnp.all(violation <= tol, axis=-1)

@@ -1,4 +1,5 @@
-"""Loading and validating body files (schema in data/SCHEMA.md).
+"""Loading and validating body files (schema in data/SCHEMA.md) and spine databases
+(data/README.md).
 
 Every error is a `BodyFileError` naming the file, the entry, the field and what is
 expected, e.g. ``data/body.json: segment 'left_forearm' (segments[12]), field 'length':
@@ -13,29 +14,16 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ._body import CENTER_OF_GRAVITY, WHOLE_BODY, Body, rest_geometry
+from ._body import CENTER_OF_GRAVITY, WHOLE_BODY, Body, Spine, rest_geometry
 from ._orientation import LIMBS
 from ._rotations import cross_of_axes
 
 SCHEMA = "diffbody.body/1"
 TOP_FIELDS = {"schema", "name", "description", "sources", "root_joint", "segments", "spine"}
-SEGMENT_FIELDS = {
-    "name",
-    "proximal",
-    "distal",
-    "length",
-    "direction",
-    "standard_orientation",
-    "limits",
-    "mass",
-    "centroid",
-    "spheres",
-    "source",
-}
-SPHERE_FIELDS = {"origin", "radius", "features"}
 FEATURE_FIELDS = {"name", "direction"}
 LIMIT_FIELDS = {
     "box": {"swing_x_deg", "swing_y_deg", "twist_deg"},
@@ -45,6 +33,8 @@ LIMIT_FIELDS = {
 }
 OPTIONAL_LIMIT_FIELDS = {"box": {"swing_max_deg"}}
 DEFAULT_SWING_MAX_DEG = 179.0
+SPINE_SCHEMA = "diffbody.spine/1"
+SPINE_ROTATIONS = ("flexion", "axial", "lateral")  # columns of the spine's angle arrays
 
 
 class BodyFileError(ValueError):
@@ -372,8 +362,6 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
         )
     body = _build(name, shown, root_name, [parsed[k] for k in order], [depth[k] for k in order])
     if "spine" in doc:
-        from ._spine import load_spine
-
         spine_path = path.parent / top.string(doc, "spine")
         spine = load_spine(spine_path)
         for joint, seg in zip(spine.joint_names, spine.segment_names):
@@ -474,9 +462,82 @@ def _build(name: str, source: str, root_name: str, segs: list[dict], depths: lis
 def _stand_on_ground(body: Body) -> Body:
     """Place the standard position so the lowest sphere touches z = 0 with the root joint
     above the world origin."""
-    import equinox as eqx
-
     _, centers = rest_geometry(body)
     radii = np.asarray(body.sphere_radii)
     lowest = float(np.min(centers[:, 2] - radii)) if body.n_spheres else 0.0
     return eqx.tree_at(lambda b: b.rest_position, body, jnp.asarray([0.0, 0.0, -lowest]))
+
+
+# --- spine databases ----------------------------------------------------------------------
+
+
+def load_spine(path: str | Path | None = None) -> Spine:
+    """Load a spine database (default: data/spine.json, schema "diffbody.spine/1",
+    described in data/README.md).
+
+    Raises:
+        BodyFileError: the file is malformed; the message names the file, the joint and the
+            field.
+    """
+    path = data_file("spine.json") if path is None else Path(path)
+    shown = str(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{shown}: no such spine file") from None
+    except json.JSONDecodeError as e:
+        raise BodyFileError(f"{shown}: not valid JSON: {e.msg} at line {e.lineno}") from None
+    if not isinstance(doc, dict) or doc.get("schema") != SPINE_SCHEMA:
+        raise BodyFileError(f"{shown}: top level, field 'schema': must be {SPINE_SCHEMA!r}")
+    rest, lower, upper, disc, offset, names, segs = [], [], [], [], [], [], []
+    for k, j in enumerate(doc.get("joints", [])):
+        entry = f"{shown}: joint {j.get('name', '?')!r} (joints[{k}])"
+        try:
+            lim = j["limits_deg"]
+            lo = [float(lim[r][0]) for r in SPINE_ROTATIONS]
+            hi = [float(lim[r][1]) for r in SPINE_ROTATIONS]
+            r = [float(x) for x in j["rest_deg"]]
+            row = (
+                j["name"],
+                j["segment"],
+                r,
+                lo,
+                hi,
+                float(j["disc_height_mm"]),
+                [float(x) for x in j["flexion_axis_offset_mm"]],
+            )
+        except (KeyError, TypeError, ValueError, IndexError) as e:
+            raise BodyFileError(
+                f"{entry}: missing or malformed field ({e!r}); see data/README.md"
+            ) from None
+        if not all(np.isfinite(row[2] + row[3] + row[4])) or len(r) != 3:
+            raise BodyFileError(f"{entry}, field 'rest_deg'/'limits_deg': 3 finite angles expected")
+        for axis, name in enumerate(SPINE_ROTATIONS):
+            if not lo[axis] <= r[axis] <= hi[axis]:
+                raise BodyFileError(
+                    f"{entry}, field 'limits_deg.{name}': the rest angle {r[axis]} must lie "
+                    f"within [lo, hi] = [{lo[axis]}, {hi[axis]}]"
+                )
+        names.append(row[0])
+        segs.append(row[1])
+        rest.append(row[2])
+        lower.append(row[3])
+        upper.append(row[4])
+        disc.append(row[5])
+        offset.append(row[6])
+    if not names:
+        raise BodyFileError(f"{shown}: top level, field 'joints': must be a non-empty list")
+    verts = doc.get("vertebrae", [])
+    return Spine(
+        joint_names=tuple(names),
+        # A pose's spine target bends from the thoracolumbar junction unless told otherwise.
+        initiator=names.index("T12_L1") if "T12_L1" in names else len(names) // 2,
+        segment_names=tuple(segs),
+        vertebra_names=tuple(v["name"] for v in verts),
+        rest=jnp.deg2rad(jnp.asarray(rest)),
+        lower=jnp.deg2rad(jnp.asarray(lower)),
+        upper=jnp.deg2rad(jnp.asarray(upper)),
+        disc_heights=jnp.asarray(disc) / 1000.0,
+        flexion_axis_offsets=jnp.asarray(offset) / 1000.0,
+        vertebra_sizes=jnp.asarray([v["size_mm"] for v in verts]).reshape(-1, 3) / 1000.0,
+    )

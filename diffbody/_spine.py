@@ -1,4 +1,6 @@
-"""The spine of Monheit & Badler (1991, seed 004): a spine database, Bendspine, Movespine.
+"""The spine of Monheit & Badler (1991, seed 004): Bendspine, Movespine, and the body's
+vertebrae set from spine angles. The database they read is `Spine` (`_body`), loaded by
+`load_spine` (`_loading`).
 
 Angles are (flexion, axial, lateral) per joint, in radians, right-handed about the body's
 Y (left), Z (up) and X (forward) axes (DESIGN section 5):
@@ -13,116 +15,14 @@ rest angles (thoracic kyphosis, lumbar lordosis), and the target of Bendspine is
 all joint angles, as in the seed.
 """
 
-import json
-from pathlib import Path
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ._body import Body, Pose, unknown_name_error
+from ._body import Body, Pose, Spine
 from ._limits import angles_from_swing, swing_vector
-from ._loading import BodyFileError, data_file
-
-FLEXION, AXIAL, LATERAL = 0, 1, 2
-ROTATIONS = ("flexion", "axial", "lateral")
-
-
-class Spine(eqx.Module):
-    """A spine database (seed 004, "Spine database"): per joint the rest angles and the
-    limits of the three rotations, disc heights and flexion-axis offsets; per vertebra its
-    size. Build it with `diffbody.load_spine`."""
-
-    joint_names: tuple[str, ...] = eqx.field(static=True)  # "C7_T1", ..., "L5_S1"
-    initiator: int = eqx.field(static=True)  # default initiator of a Pose's spine_target
-    segment_names: tuple[str, ...] = eqx.field(static=True)  # body segment each joint moves
-    vertebra_names: tuple[str, ...] = eqx.field(static=True)  # "T1", ..., "L5"
-    rest: Float[Array, "n_joint 3"]  # rad, the standing posture
-    lower: Float[Array, "n_joint 3"]  # rad, limits (absolute joint angles)
-    upper: Float[Array, "n_joint 3"]  # rad
-    disc_heights: Float[Array, " n_joint"]  # m
-    flexion_axis_offsets: Float[Array, "n_joint 2"]  # m, (x forward, z up) from the disc centre
-    vertebra_sizes: Float[Array, "n_vert 3"]  # m, depth (x), breadth (y), height (z)
-
-    @property
-    def n_joints(self) -> int:
-        return len(self.joint_names)
-
-    def joint_index(self, name: str) -> int:
-        """Index of a spine joint ("T6_T7") or of the vertebra it moves ("T6", "neck")."""
-        if name in self.joint_names:
-            return self.joint_names.index(name)
-        if name in self.segment_names:
-            return self.segment_names.index(name)
-        raise unknown_name_error("spine joint", name, self.joint_names + self.segment_names)
-
-
-def load_spine(path: str | Path | None = None) -> Spine:
-    """Load a spine database (default: data/spine.json, schema "diffbody.spine/1")."""
-    path = data_file("spine.json") if path is None else Path(path)
-    shown = str(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{shown}: no such spine file") from None
-    except json.JSONDecodeError as e:
-        raise BodyFileError(f"{shown}: not valid JSON: {e.msg} at line {e.lineno}") from None
-    if not isinstance(doc, dict) or doc.get("schema") != "diffbody.spine/1":
-        raise BodyFileError(f"{shown}: top level, field 'schema': must be 'diffbody.spine/1'")
-    rest, lower, upper, disc, offset, names, segs = [], [], [], [], [], [], []
-    for k, j in enumerate(doc.get("joints", [])):
-        entry = f"{shown}: joint {j.get('name', '?')!r} (joints[{k}])"
-        try:
-            lim = j["limits_deg"]
-            lo = [float(lim[r][0]) for r in ROTATIONS]
-            hi = [float(lim[r][1]) for r in ROTATIONS]
-            r = [float(x) for x in j["rest_deg"]]
-            row = (
-                j["name"],
-                j["segment"],
-                r,
-                lo,
-                hi,
-                float(j["disc_height_mm"]),
-                [float(x) for x in j["flexion_axis_offset_mm"]],
-            )
-        except (KeyError, TypeError, ValueError, IndexError) as e:
-            raise BodyFileError(
-                f"{entry}: missing or malformed field ({e!r}); see data/README.md"
-            ) from None
-        if not all(np.isfinite(row[2] + row[3] + row[4])) or len(r) != 3:
-            raise BodyFileError(f"{entry}, field 'rest_deg'/'limits_deg': 3 finite angles expected")
-        for axis, name in enumerate(ROTATIONS):
-            if not lo[axis] <= r[axis] <= hi[axis]:
-                raise BodyFileError(
-                    f"{entry}, field 'limits_deg.{name}': the rest angle {r[axis]} must lie "
-                    f"within [lo, hi] = [{lo[axis]}, {hi[axis]}]"
-                )
-        names.append(row[0])
-        segs.append(row[1])
-        rest.append(row[2])
-        lower.append(row[3])
-        upper.append(row[4])
-        disc.append(row[5])
-        offset.append(row[6])
-    if not names:
-        raise BodyFileError(f"{shown}: top level, field 'joints': must be a non-empty list")
-    verts = doc.get("vertebrae", [])
-    return Spine(
-        joint_names=tuple(names),
-        # A pose's spine target bends from the thoracolumbar junction unless told otherwise.
-        initiator=names.index("T12_L1") if "T12_L1" in names else len(names) // 2,
-        segment_names=tuple(segs),
-        vertebra_names=tuple(v["name"] for v in verts),
-        rest=jnp.deg2rad(jnp.asarray(rest)),
-        lower=jnp.deg2rad(jnp.asarray(lower)),
-        upper=jnp.deg2rad(jnp.asarray(upper)),
-        disc_heights=jnp.asarray(disc) / 1000.0,
-        flexion_axis_offsets=jnp.asarray(offset) / 1000.0,
-        vertebra_sizes=jnp.asarray([v["size_mm"] for v in verts]).reshape(-1, 3) / 1000.0,
-    )
 
 
 class BendResult(eqx.Module):
