@@ -20,22 +20,40 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from ._body import Body, Pose
-from ._reach import ReachResult, Target, TargetSet, _solve, make_problem, resolve_targets
+from ._problem import reach_bound, scaled_distance
+from ._projection import needs_projection, twists_to_keep
+from ._reach import (
+    Attempt,
+    ReachResult,
+    _check_settings,
+    _start_links_jit,
+    _status,
+    attempt,
+    finish,
+    phase_layouts,
+)
+from ._targets import Target, TargetSet, resolve_targets
 
 
-def _solve_rows(problem, template: TargetSet, xyz, max_steps, tol_pos, tol_angle, first, starts):
-    """`_solve` vmapped over the targets' positions (xyz: (batch, k, 3))."""
+def _attempt_rows(body, layout, inits, template: TargetSet, xyz, ks, max_steps, tol_pos, tol_ang):
+    """`attempt` vmapped over rows: their start poses, target positions (batch, k, 3) and
+    start indices."""
 
-    def one(p):
+    def one(init, p, k):
         targets = eqx.tree_at(lambda t: t.point_xyz, template, p)
-        return _solve(problem, targets, max_steps, tol_pos, tol_angle, starts, True, first)
+        return attempt(body, layout, init, targets, k, max_steps, tol_pos, tol_ang)
 
-    return jax.vmap(one)(xyz)
+    return jax.vmap(one)(inits, xyz, ks)
 
 
-# One compiled function per (body structure, k, chunk size, settings), shared by all chunks,
-# both passes (the starts are traced) and all calls with the same shapes.
-_solve_rows_jit = eqx.filter_jit(_solve_rows)
+def _finish_rows(body, poses, keep):
+    return jax.vmap(lambda p: finish(body, p, keep))(poses)
+
+
+# One compiled function per (body structure, layout, chunk size), shared by all chunks,
+# passes and starts (the start index is traced) and by all calls with the same shapes.
+_attempt_rows_jit = eqx.filter_jit(_attempt_rows)
+_finish_rows_jit = eqx.filter_jit(_finish_rows)
 
 
 def _duration(s: float) -> str:
@@ -127,10 +145,11 @@ def solve_reach_batch(
             + (" or (n, 3)" if k == 1 else "")
             + f", got {np.shape(positions)}"
         )
+    _check_settings(starts=starts, max_steps=max_steps, tol_position=tol_position, tol_angle=1.0)
     template, _ = resolve_targets(body, [Target.position(e, np.zeros(3)) for e in effectors])
-    problem = make_problem(body, template, init, spine=spine, segments=segments)
+    init = body.rest_pose() if init is None else init
+    layouts = phase_layouts(body, template, spine=spine, free_root=False, segments=segments)
     n = xyz.shape[0]
-
     devices = list(jax.local_devices() if devices is None else devices)
     n_dev = len(devices)
     chunk = max(1, min(int(chunk_size), n))
@@ -140,52 +159,121 @@ def solve_reach_batch(
         sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
     else:
         sharding = jax.sharding.SingleDeviceSharding(devices[0])
+    dtype = jnp.result_type(float)
+    tols = (jnp.asarray(tol_position, dtype), jnp.asarray(np.deg2rad(1.0), dtype))
 
-    def solve(rows: np.ndarray, chunk: int, first: int, last: int, label: str) -> ReachResult:
-        """Rows through the compiled solve in chunks (the last one padded with copies of
-        its last row, dropped after), from starts first, ..., last - 1 (traced: one
-        compiled function for both passes)."""
-        first, last = jnp.asarray(first), jnp.asarray(last)
-        settings = jnp.asarray(tol_position), jnp.asarray(0.0)
-        bar = _Progress(len(rows), progress, label)
+    def chunks(fn, arrays, total, label):
+        """fn over `arrays` (leading axis total) in chunks, the last padded with copies of
+        its last row (dropped after); host numpy results."""
+        bar = _Progress(total, progress, label)
         parts = []
-        for at in range(0, len(rows), chunk):
-            part = rows[at : at + chunk]
-            m = part.shape[0]
+        for at in range(0, total, chunk):
+            part = jax.tree.map(lambda a: a[at : at + chunk], arrays)
+            m = min(chunk, total - at)
             if m < chunk:
-                part = np.concatenate([part, np.repeat(part[-1:], chunk - m, axis=0)])
-            part = jax.device_put(jnp.asarray(part), sharding)
-            out = _solve_rows_jit(problem, template, part, max_steps, *settings, first, last)
+                part = jax.tree.map(
+                    lambda a: np.concatenate([a, np.repeat(a[-1:], chunk - m, axis=0)]), part
+                )
+            part = jax.device_put(jax.tree.map(jnp.asarray, part), sharding)
+            out = fn(*part)
             parts.append(jax.tree.map(lambda a, m=m: np.asarray(a)[:m], out))
             bar.update(at + m)
         return jax.tree.map(lambda *a: np.concatenate(a), *parts)
 
+    def run(layout, poses, rows_xyz, ks, label) -> Attempt:
+        def fn(p, x, k):
+            return _attempt_rows_jit(body, layout, p, template, x, k, max_steps, *tols)
+
+        return chunks(fn, (poses, rows_xyz, ks), len(ks), label)
+
+    def rows_of(tree, rows):
+        return jax.tree.map(lambda a: a[rows], tree)
+
     if n == 0:  # shapes from the abstract evaluation
+        poses = jax.tree.map(lambda a: jnp.asarray(a)[None], init)
         shapes = eqx.filter_eval_shape(
-            _solve_rows, problem, template, jnp.zeros((1, k, 3)), max_steps, tol_position, 0.0, 0, 1
+            _attempt_rows,
+            body,
+            layouts[-1],
+            poses,
+            template,
+            jnp.zeros((1, k, 3)),
+            jnp.zeros(1, int),
+            max_steps,
+            *tols,
         )
-        return jax.tree.map(lambda s: np.zeros((0,) + s.shape[1:], s.dtype), shapes)
-    # Two passes: every row from the initial posture (most are reached there), then the
-    # rest from the other starts, in smaller chunks (a power of two, at least an eighth of
-    # a chunk: a few compiled shapes at most). Under vmap a chunk runs as many starts as
-    # its hardest row, so the hard rows are solved apart.
-    out = solve(xyz, chunk, 0, 1, "reach")
-    todo = np.flatnonzero(np.any(out.valid & ~out.reached, axis=1))
-    if starts > 1 and len(todo):
-        small = max(chunk // 8, 1 << (len(todo) - 1).bit_length())
-        small = -(-min(small, chunk) // n_dev) * n_dev
-        retry = solve(xyz[todo], small, 1, starts, "retry")
-        cost = np.sum(np.where(out.valid, out.residuals, 0.0) ** 2, axis=1)
-        cost_retry = np.sum(np.where(retry.valid, retry.residuals, 0.0) ** 2, axis=1)
-        take = np.all(retry.reached | ~retry.valid, axis=1) | (cost_retry < cost[todo])
-        steps = out.steps[todo] + retry.steps
-        rows = todo[take]
-        out = jax.tree.map(lambda a, r: _put(a, rows, r[take]), out, retry)
-        out = eqx.tree_at(lambda o: o.steps, out, _put(out.steps, todo, steps))
-    return out
+        empty = jax.tree.map(lambda s: np.zeros((0,) + s.shape[1:], s.dtype), shapes)
+        return _batch_result(empty, xyz, np.zeros(0, int), np.zeros((0, k), bool), tol_position)
+
+    init_np = jax.tree.map(np.asarray, init)
+    best = None
+    steps = np.zeros(n, int)
+    beyond = np.zeros((n, k), bool)
+    start_poses = jax.tree.map(lambda a: np.repeat(a[None], n, axis=0), init_np)
+    todo = np.arange(n)
+    for phase, layout in enumerate(layouts):
+        links, _, _ = _start_links_jit(body, init)
+        anchor, bound = reach_bound(body, layout, links)
+        dist = np.asarray(scaled_distance(jnp.asarray(xyz), jnp.asarray(anchor)[None]))
+        with np.errstate(invalid="ignore"):
+            beyond = np.isfinite(xyz).all(-1) & (dist > bound)
+        label = "reach" if phase == 0 else "reach, trunk"
+        a = run(layout, rows_of(start_poses, todo), xyz[todo], np.zeros(len(todo), int), label)
+        steps[todo] += a.steps
+        best = a if best is None else _merge(best, todo, a)
+        # Further starts for the rows that missed with no bound against them, all starts
+        # side by side (one row per start), the first that reaches kept.
+        retry = todo[~a.ok & ~beyond[todo].any(-1)]
+        if starts > 1 and len(retry):
+            ks = np.tile(np.arange(1, starts), len(retry))
+            rows = np.repeat(retry, starts - 1)
+            b = run(layout, rows_of(start_poses, rows), xyz[rows], ks, "retry")
+            np.add.at(steps, rows, b.steps)
+            b_ok = b.ok.reshape(len(retry), starts - 1)
+            b_cost = b.cost.reshape(len(retry), starts - 1)
+            pick = np.where(b_ok.any(1), b_ok.argmax(1), b_cost.argmin(1))
+            chosen = rows_of(b, np.arange(len(retry)) * (starts - 1) + pick)
+            current = rows_of(best, retry)
+            take = (chosen.ok & ~current.ok) | (
+                (chosen.ok == current.ok) & (chosen.cost < current.cost)
+            )
+            best = _merge(best, retry[take], rows_of(chosen, take))
+        todo = np.flatnonzero(~best.ok)
+        if not len(todo):
+            break
+        start_poses = best.pose  # the trunk joins from the limbs' closest reach
+    final = layouts[-1]
+    keep = twists_to_keep(body, final) if needs_projection(body, final) else None
+    if keep is not None:
+        poses = chunks(lambda p: _finish_rows_jit(body, p, keep), (best.pose,), n, "project")
+        best = eqx.tree_at(lambda b: b.pose, best, poses)
+    return _batch_result(best, xyz, steps, beyond, tol_position)
 
 
-def _put(a: np.ndarray, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
-    a = a.copy()
-    a[rows] = values
-    return a
+def _merge(best: Attempt, rows: np.ndarray, new: Attempt) -> Attempt:
+    def put(a, r):
+        a = np.array(a, copy=True)
+        a[rows] = r
+        return a
+
+    return jax.tree.map(put, best, new)
+
+
+def _batch_result(best: Attempt, xyz: np.ndarray, steps, beyond, tol_position) -> ReachResult:
+    """Per-row results as host arrays (no axis targets in a batch)."""
+    valid = np.isfinite(xyz).all(-1)
+    reached = valid & (best.err_p <= tol_position)
+    status = (
+        np.asarray(jax.vmap(_status)(reached, valid, beyond & valid))
+        if len(xyz)
+        else np.zeros(0, int)
+    )
+    return ReachResult(
+        pose=best.pose,
+        reached=reached,
+        residuals=np.where(valid, best.err_p, 0.0),
+        valid=valid,
+        beyond=beyond & valid,
+        status=status,
+        steps=np.asarray(steps),
+    )

@@ -4,15 +4,24 @@
 jax.jit / jax.vmap / jax.grad. Batching is jax.vmap over poses (or bodies).
 """
 
+import functools
+
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from ._body import PHI, TAU, THETA, Body, Pose
+from ._chain import Chain, make_chain, walk
 from ._orientation import azimuth_polar_to_vector, standard_frame, vector_to_azimuth_polar
-from ._rotations import matmul3, matvec3, rotate_about_z, swing_rotation, twist_about_z
+from ._rotations import (
+    exp_rotvec,
+    matmul3,
+    matvec3,
+    rotate_about_z,
+    swing_rotation,
+    twist_about_z,
+)
 
 
 class Kinematics(eqx.Module):
@@ -77,18 +86,8 @@ def spine_deviation(body: Body, spine_target: Array) -> tuple[np.ndarray, Array,
 
 
 def exp_swing(w: Float[Array, "*b 2"]) -> Float[Array, "*b 3 3"]:
-    """exp of the rotation vector (w_x, w_y, 0): the swing as a matrix, smooth at zero."""
-    from ._rotations import eps_for, skew
-
-    v = jnp.concatenate([w, jnp.zeros_like(w[..., :1])], axis=-1)
-    a2 = jnp.sum(v * v, axis=-1)[..., None, None]
-    small = a2 < jnp.sqrt(eps_for(a2))
-    safe = jnp.where(small, 1.0, a2)
-    a = jnp.sqrt(safe)
-    s = jnp.where(small, 1.0 - a2 / 6.0, jnp.sin(a) / a)
-    c = jnp.where(small, 0.5 - a2 / 24.0, (1.0 - jnp.cos(a)) / safe)
-    K = skew(v)
-    return jnp.eye(3, dtype=v.dtype) + s * K + c * matmul3(K, K)
+    """exp of the rotation vector (w_x, w_y, 0): a swing as a matrix, smooth at zero."""
+    return exp_rotvec(jnp.concatenate([w, jnp.zeros_like(w[..., :1])], axis=-1))
 
 
 def socket_frames_from_swing(
@@ -142,10 +141,10 @@ def feature_points(
 def forward(body: Body, pose: Pose) -> Kinematics:
     """Forward kinematics of one pose (seed 000).
 
-    Walks the tree level by level (the levels are static): a segment's socket is its
-    parent's twisted frame turned by the fixed socket rotation, its base frame is the
-    socket times Rz(theta) Ry(phi) Rz(s), its distal joint lies at (0, 0, length), and its
-    children hang from the base frame turned by its twist tau. Surface spheres, features and
+    One walk of the tree (`diffbody._chain.walk`): a segment's socket is its parent's
+    twisted frame turned by the fixed socket rotation, its base frame is the socket times
+    Rz(theta) Ry(phi) Rz(s), its distal joint lies at (0, 0, length), and its children hang
+    from the base frame turned by its twist tau. Surface spheres, features and
     the centroid turn about Z by tau * z / length.
 
     Args:
@@ -176,63 +175,90 @@ def pose_frames(body: Body, pose: Pose) -> tuple[Float[Array, "n_seg 3 3"], Floa
     return R_socket_base, tau
 
 
+class Links(eqx.Module):
+    """The world state of segments after a walk (`walk_links`), leading axis per segment."""
+
+    R_base: Float[Array, "*k 3 3"]  # cross of axes, standard orientation, no twist
+    R_twisted: Float[Array, "*k 3 3"]  # turned by the twist at the distal joint
+    p_proximal: Float[Array, "*k 3"]
+    p_distal: Float[Array, "*k 3"]
+
+
+def link_step(parent: Links, x: tuple[Array, Array, Array]) -> Links:
+    """One segment of forward kinematics (seed 000): its base frame is its parent's twisted
+    frame times the fixed local rotation (socket, then direction), its distal joint lies at
+    (0, 0, length), and its children hang from the base frame turned by its twist."""
+    R_local, tau, length = x
+    R_base = parent.R_twisted @ R_local
+    return Links(
+        R_base=R_base,
+        R_twisted=twist_about_z(R_base, tau),
+        p_proximal=parent.p_distal,
+        p_distal=parent.p_distal + R_base[:, 2] * length,
+    )
+
+
+def walk_links(
+    body: Body,
+    chain: Chain,
+    R_socket_base: Float[Array, "k 3 3"],
+    tau: Float[Array, " k"],
+    bases: Links,
+) -> Links:
+    """Forward kinematics of a chain's segments (chain order) from their base frames in
+    their sockets and their twists, hanging from `bases` (one walk)."""
+    seg = np.asarray(chain.segments, int)
+    R_local = matmul3(body.R_parent_socket[seg], R_socket_base)
+    return walk(chain, link_step, bases, (R_local, tau, body.lengths[seg]))
+
+
+def world_base(position: Float[Array, "3"]) -> Links:
+    """The environment as the base the whole body hangs from: the world frame, with the
+    root joint at `position`."""
+    eye = jnp.eye(3, dtype=position.dtype)[None]
+    p = position[None]
+    return Links(R_base=eye, R_twisted=eye, p_proximal=p, p_distal=p)
+
+
+def full_chain(body: Body) -> Chain:
+    """Every segment of the body, hanging from the world."""
+    return _full_chain(body.parent)
+
+
+@functools.cache
+def _full_chain(parent: tuple[int, ...]) -> Chain:
+    return make_chain(parent, range(len(parent)), [-1])
+
+
+def reroot(body: Body, links: Links, position: Float[Array, "3"]) -> Links:
+    """Links of the whole tree moved by the rigid motion that pins the frame ending at the
+    root joint to the whole body's orientation and puts the root joint at `position` (see
+    `Body.with_root`); the identity for a body with its default root."""
+    if body.root_joint == body.default_root_joint:
+        return links
+    seg = body.distal_joint.index(body.root_joint)
+    Rc = links.R_twisted[0] @ body.R_world_pin_rest @ links.R_twisted[seg].T
+    offset = position - Rc @ links.p_distal[seg]
+    return Links(
+        R_base=matmul3(Rc, links.R_base),
+        R_twisted=matmul3(Rc, links.R_twisted),
+        p_proximal=links.p_proximal @ Rc.T + offset,
+        p_distal=links.p_distal @ Rc.T + offset,
+    )
+
+
 def forward_frames(
     body: Body,
     R_socket_base: Float[Array, "n_seg 3 3"],
     tau: Float[Array, " n_seg"],
     position: Float[Array, "3"],
 ) -> Kinematics:
-    """`forward` from each segment's base frame in its socket and its twist (the solver's
-    entry point: it builds the frames from swing vectors, see `socket_frames_from_swing`)."""
-    R_parent_base = matmul3(body.R_parent_socket, R_socket_base)
-    position = jnp.asarray(position, R_parent_base.dtype)
-    # The tree is walked level by level with one lax.scan (the levels are static and padded
-    # to one width; padding reads and writes a scratch slot n): a single compiled step keeps
-    # compile times short, also under jacobians and solvers.
-    n = body.n_segments
-    parents = np.asarray(body.parent)
-    rest_levels = body.levels[1:]
-    width = max((len(level) for level in rest_levels), default=1)
-    idx = np.full((max(len(rest_levels), 1), width), n)
-    for k, level in enumerate(rest_levels):
-        idx[k, : len(level)] = level
-    par = np.where(idx < n, np.append(parents, n)[idx], n)
-    pad = lambda a: jnp.concatenate([a, jnp.zeros_like(a[:1])])  # noqa: E731
-    R_local, tau_p, L_p = pad(R_parent_base), pad(tau), pad(body.lengths)
-    R_b0 = R_parent_base[0]
-    carry = (
-        jnp.zeros((n + 1, 3, 3), R_b0.dtype).at[0].set(R_b0),
-        jnp.zeros((n + 1, 3, 3), R_b0.dtype).at[0].set(twist_about_z(R_b0, tau[0])),
-        jnp.zeros((n + 1, 3), R_b0.dtype).at[0].set(position),
-        jnp.zeros((n + 1, 3), R_b0.dtype).at[0].set(position + R_b0[:, 2] * body.lengths[0]),
-    )
-
-    def level_step(carry, xs):
-        R_b, R_t, p_p, p_d = carry
-        i, up = xs
-        Rb = matmul3(R_t[up], R_local[i])
-        p_up = p_d[up]
-        R_b = R_b.at[i].set(Rb)
-        R_t = R_t.at[i].set(twist_about_z(Rb, tau_p[i]))
-        p_p = p_p.at[i].set(p_up)
-        p_d = p_d.at[i].set(p_up + Rb[:, :, 2] * L_p[i, None])
-        return (R_b, R_t, p_p, p_d), None
-
-    if rest_levels:
-        carry, _ = jax.lax.scan(level_step, carry, (jnp.asarray(idx), jnp.asarray(par)))
-    R_base, R_twisted, p_prox, p_dist = (a[:n] for a in carry)
-
-    if body.root_joint != body.default_root_joint:
-        # Re-rooted body: pin the frame ending at the root joint to the whole body's
-        # orientation and put the root joint at `position` (see Body.with_root).
-        seg = body.distal_joint.index(body.root_joint)
-        Rc = R_twisted[0] @ body.R_world_pin_rest @ R_twisted[seg].T
-        offset = position - Rc @ p_dist[seg]
-        R_base, R_twisted = matmul3(Rc, R_base), matmul3(Rc, R_twisted)
-        p_prox = p_prox @ Rc.T + offset
-        p_dist = p_dist @ Rc.T + offset
-
-    joint_positions = jnp.concatenate([p_prox[:1], p_dist], axis=0)
+    """`forward` from each segment's base frame in its socket and its twist."""
+    position = jnp.asarray(position, R_socket_base.dtype)
+    links = walk_links(body, full_chain(body), R_socket_base, tau, world_base(position))
+    links = reroot(body, links, position)
+    R_base, p_prox = links.R_base, links.p_proximal
+    joint_positions = jnp.concatenate([p_prox[:1], links.p_distal], axis=0)
 
     def place(seg: np.ndarray, local: Array, z: Array) -> Array:
         return place_on_segments(body, seg, local, z, R_base[seg], tau[seg])
@@ -250,7 +276,7 @@ def forward_frames(
     return Kinematics(
         joint_positions=joint_positions,
         R_world_base=R_base,
-        R_world_twisted=R_twisted,
+        R_world_twisted=links.R_twisted,
         sphere_centers=centers,
         sphere_radii=body.sphere_radii,
         feature_points=features,

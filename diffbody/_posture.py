@@ -41,7 +41,7 @@ def whole_body_rotation(body: Body, p: Array) -> Array:
     return swing_rotation(d0, safe_normalize(vec[kids[0]], d0))
 
 
-def _angles_of_rotation(R: Array) -> Array:
+def angles_of_rotation(R: Array) -> Array:
     """(theta, phi, tau) of the whole body (swing default about +Z) for a world rotation."""
     theta, phi, _ = vector_to_azimuth_polar(R[:, 2])
     M = swing_rotation(jnp.asarray([0.0, 0.0, 1.0], R.dtype), R[:, 2]).T @ R
@@ -85,7 +85,7 @@ def _pose_from_joints(
     tau = jnp.zeros(n, p.dtype) if deviation is None else jnp.asarray(deviation, p.dtype)
     default = body.default_root_joint
     # The whole body's twist is its stance, fixed by the positions: no deviation applies.
-    angles = jnp.zeros((n, 3), p.dtype).at[0].set(_angles_of_rotation(W))
+    angles = jnp.zeros((n, 3), p.dtype).at[0].set(angles_of_rotation(W))
     R_twisted = jnp.zeros((n, 3, 3), p.dtype).at[0].set(W)
     prox, dist, par = (np.asarray(a) for a in (body.proximal_joint, body.distal_joint, body.parent))
     for level in body.levels[1:]:
@@ -103,7 +103,7 @@ def _pose_from_joints(
         # Re-rooted body: the whole body's orientation is the pinned frame's, relative to
         # its standard-position frame (see Body.with_root).
         seg = body.distal_joint.index(body.root_joint)
-        angles = angles.at[0].set(_angles_of_rotation(R_twisted[seg] @ body.R_world_pin_rest.T))
+        angles = angles.at[0].set(angles_of_rotation(R_twisted[seg] @ body.R_world_pin_rest.T))
         position = p[body.root_joint]
     return Pose(position=position, angles=angles)
 

@@ -36,15 +36,6 @@ def rot_y(angle: Float[ArrayLike, "*b"]) -> Float[Array, "*b 3 3"]:
     )
 
 
-def rot_x(angle: Float[ArrayLike, "*b"]) -> Float[Array, "*b 3 3"]:
-    """Rotation by `angle` (rad) about X."""
-    c, s = jnp.cos(angle), jnp.sin(angle)
-    o, z = jnp.ones_like(c), jnp.zeros_like(c)
-    return jnp.stack(
-        [jnp.stack([o, z, z], -1), jnp.stack([z, c, -s], -1), jnp.stack([z, s, c], -1)], -2
-    )
-
-
 def safe_norm(v: Float[ArrayLike, "*b n"]) -> Float[Array, "*b"]:
     """Euclidean norm whose gradient is finite (zero) at the zero vector."""
     v = jnp.asarray(v)
@@ -79,6 +70,20 @@ def skew(v: Float[ArrayLike, "*b 3"]) -> Float[Array, "*b 3 3"]:
     return jnp.stack(
         [jnp.stack([o, -z, y], -1), jnp.stack([z, o, -x], -1), jnp.stack([-y, x, o], -1)], -2
     )
+
+
+def exp_rotvec(v: Float[ArrayLike, "*b 3"]) -> Float[Array, "*b 3 3"]:
+    """exp([v]x): the rotation by |v| (rad) about v / |v|, by Rodrigues' formula; smooth at
+    v = 0 (series below a dtype-aware threshold, the unsafe branch fed a harmless value)."""
+    v = jnp.asarray(v)
+    a2 = jnp.sum(v * v, axis=-1)[..., None, None]
+    small = a2 < jnp.sqrt(eps_for(a2))
+    safe = jnp.where(small, 1.0, a2)
+    a = jnp.sqrt(safe)
+    s = jnp.where(small, 1.0 - a2 / 6.0, jnp.sin(a) / a)
+    c = jnp.where(small, 0.5 - a2 / 24.0, (1.0 - jnp.cos(a)) / safe)
+    K = skew(v)
+    return jnp.eye(3, dtype=v.dtype) + s * K + c * matmul3(K, K)
 
 
 def matmul3(
