@@ -37,8 +37,9 @@ What a rigid-body format cannot say:
 The whole body (segment 0) is placed by the pose's position. In MJCF it has three slide
 joints along the world axes before its three hinges; URDF has no free joint, so the URDF
 fixes it at its standard-position placement (see `export_urdf`). A body re-rooted with
-`Body.with_root` exports the same tree (rooted at the whole body); `mujoco_qpos` finds the
-whole body's placement for its poses.
+`Body.with_root` exports the same tree (rooted at the whole body); `mujoco_qpos` places the
+whole body where `forward` puts it. Joint values are read off `forward`'s frames, so a pose
+with a spine target exports its bent spine.
 """
 
 import math
@@ -53,9 +54,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._body import PHI, TAU, THETA, Body, Pose, rest_geometry
-from ._kinematics import socket_frames
+from ._kinematics import forward
 from ._orientation import LIMBS, standard_twist
-from ._rotations import twist_about_z
 
 TINY_MASS = 1e-6  # kg, for massless links (the whole body, URDF's intermediate links)
 TINY_INERTIA = 1e-10  # kg m^2, their (isotropic) moments of inertia
@@ -76,15 +76,36 @@ SITE_SIZE = 0.005  # m
 
 
 # --- joint values ---------------------------------------------------------------------------
-def _hinge_angles(body: Body, angles: jax.Array) -> jax.Array:
-    """(theta, phi, s(theta, phi) + tau) per segment, (n_seg, 3), for pose angles (n_seg, 3).
+def _frame_rows(body: Body, pose: Pose) -> np.ndarray:
+    """Segments whose hinges are read off their frames, not the pose's rows: the whole body
+    of a re-rooted body (`forward` turns it to pin the root's segment) and, for a pose with a
+    spine target, the segments of the spine database (`forward` replaces their rows)."""
+    rows = [] if body.root_joint == body.default_root_joint else [0]
+    if pose.spine_target is not None and body.spine is not None:
+        rows += [body.segment_index(name) for name in body.spine.segment_names]
+    return np.asarray(rows, dtype=int)
 
-    Limbs take s from their table (`standard_twist`, unwrapped); swing segments read it off
-    their socket frame S = swing(d_rest, d) R_socket_rest, whose Z is the direction (theta,
-    phi), so (Rz(theta) Ry(phi))^T S = Rz(s): s = atan2 of its first column. Exact at the poles
-    too, since theta is given."""
+
+def _joint_values(body: Body, pose: Pose) -> tuple[jax.Array, jax.Array]:
+    """The whole body's proximal joint (3,) (m) and every segment's hinges (theta, phi,
+    twist) (n_seg, 3) (rad), with Rz(theta) Ry(phi) Rz(twist) its twisted frame in its socket.
+
+    Everything comes from `forward`: segment i's socket is its parent's twisted frame turned
+    by R_parent_socket[i] (the world's, for the whole body), which gives its base frame S and
+    twisted frame T in the socket. Rows the pose sets keep its theta and phi (exact at the
+    poles, where a frame cannot tell theta from twist) with twist = s(theta, phi) + tau: limbs
+    take s from their table (`standard_twist`, unwrapped); swing segments read it off S, whose
+    Z is the direction (theta, phi), so (Rz(theta) Ry(phi))^T S = Rz(s). Rows of
+    `_frame_rows` are the ZYZ angles of T."""
+    fk = forward(body, pose)
+    n = body.n_segments
+    up = np.where(np.asarray(body.parent) < 0, n, body.parent)
+    world = jnp.eye(3, dtype=fk.R_world_twisted.dtype)[None]  # the whole body's parent
+    R_world_up = jnp.concatenate([fk.R_world_twisted, world])
+    R_world_socket = R_world_up[up] @ body.R_parent_socket
+    S = jnp.swapaxes(R_world_socket, -1, -2) @ fk.R_world_base
+    angles = jnp.asarray(pose.angles)
     theta, phi, tau = angles[:, THETA], angles[:, PHI], angles[:, TAU]
-    S = socket_frames(body, angles)
     ct, st, cp, sp = jnp.cos(theta), jnp.sin(theta), jnp.cos(phi), jnp.sin(phi)
     # Columns of Rz(theta) Ry(phi): a0 = (ct cp, st cp, -sp), a1 = (-st, ct, 0).
     m00 = ct * cp * S[:, 0, 0] + st * cp * S[:, 1, 0] - sp * S[:, 2, 0]
@@ -94,7 +115,19 @@ def _hinge_angles(body: Body, angles: jax.Array) -> jax.Array:
         k = np.flatnonzero([kind == limb for kind in body.standard_kind])
         if k.size:
             s = s.at[k].set(standard_twist(theta[k], phi[k], limb))
-    return jnp.stack([theta, phi, s + tau], axis=-1)
+    hinges = jnp.stack([theta, phi, s + tau], axis=-1)
+    rows = _frame_rows(body, pose)
+    if rows.size:
+        T = jnp.swapaxes(R_world_socket[rows], -1, -2) @ fk.R_world_twisted[rows]
+        hinges = hinges.at[rows].set(jax.vmap(_zyz)(T))
+    return fk.joint_positions[body.proximal_joint[0]], hinges
+
+
+@eqx.filter_jit
+def _joint_values_batch(body: Body, poses: Pose) -> tuple[jax.Array, jax.Array]:
+    """`_joint_values` of poses with one leading batch axis (one compile serves both
+    formats)."""
+    return jax.vmap(lambda pose: _joint_values(body, pose))(poses)
 
 
 def _zyz(M: jax.Array) -> jax.Array:
@@ -131,60 +164,6 @@ def mujoco_joint_names(body: Body) -> tuple[str, ...]:
     return tuple(names)
 
 
-def _resolved(body: Body, pose: Pose) -> Pose:
-    """The pose with a spine target (if it carries one) bent into its vertebra rows, as
-    `forward` does."""
-    if getattr(pose, "spine_target", None) is not None:
-        from ._kinematics import _bend_spine
-
-        pose = _bend_spine(body, pose)
-    return pose
-
-
-def _rerooted_whole_body(
-    body: Body, position: jax.Array, angles: jax.Array
-) -> tuple[jax.Array, jax.Array]:
-    """Proximal joint and twisted frame of the whole body of a re-rooted body (see
-    `Body.with_root` and `forward`): the tree hangs from the world by the root joint, so
-    walk the path from the whole body to the segment ending there, then move everything by
-    the rigid motion that pins that segment's frame and puts the root joint at `position`."""
-    seg = body.distal_joint.index(body.root_joint)
-    path = [seg]
-    while body.parent[path[-1]] >= 0:
-        path.append(body.parent[path[-1]])
-    path = np.asarray(path[::-1])
-    S = socket_frames(body, angles[path], path)
-    R, p = jnp.eye(3, dtype=S.dtype), position
-    for j, k in enumerate(path):
-        R_base = R @ body.R_parent_socket[k] @ S[j]
-        p = p + body.lengths[k] * R_base[:, 2]  # the distal joint
-        R = twist_about_z(R_base, angles[k, TAU])
-        if j == 0:
-            R_whole = R
-    Rc = R_whole @ body.R_world_pin_rest @ R.T
-    return Rc @ position + (position - Rc @ p), Rc @ R_whole
-
-
-def _qpos_one(body: Body, pose: Pose) -> jax.Array:
-    pose = _resolved(body, pose)
-    position, angles = jnp.asarray(pose.position), jnp.asarray(pose.angles)
-    hinges = _hinge_angles(body, angles)
-    if body.root_joint != body.default_root_joint:
-        position, R_whole = _rerooted_whole_body(body, position, angles)
-        hinges = hinges.at[0].set(_zyz(body.R_parent_socket[0].T @ R_whole))
-    return jnp.concatenate([position, hinges[np.asarray(_depth_first(body))].reshape(-1)])
-
-
-@eqx.filter_jit
-def _qpos_batch(body: Body, poses: Pose) -> jax.Array:
-    return jax.vmap(lambda p: _qpos_one(body, p))(poses)
-
-
-@eqx.filter_jit
-def _pose_hinges(body: Body, pose: Pose) -> jax.Array:
-    return _hinge_angles(body, jnp.asarray(_resolved(body, pose).angles))
-
-
 def mujoco_qpos(body: Body, pose: Pose) -> np.ndarray:
     """MuJoCo `qpos` of a pose, in the joint order of `export_mjcf`'s file.
 
@@ -193,11 +172,12 @@ def mujoco_qpos(body: Body, pose: Pose) -> np.ndarray:
     is diffbody's segment frame; angles as given, not wrapped (the hinges are unlimited).
     MuJoCo orders joints as the file nests its bodies, so the segments come depth first
     (whole_body, pelvis, L5, L4, ..., then the legs), not in `body.segment_names` order:
-    `mujoco_joint_names` names every entry. For a body
-    with its default root the position is `pose.position`; for a re-rooted body
-    (`Body.with_root`) the whole body's position and hinges are those that put the root
-    joint where `forward` does. A pose carrying a spine target is bent first, as in
-    `forward`. Computed with JAX (float64 if x64 is on), returned as NumPy.
+    `mujoco_joint_names` names every entry. For a body with its default root the position
+    is `pose.position`; for a re-rooted body (`Body.with_root`) the whole body's position
+    and hinges are its proximal joint and twisted frame in `forward`. For a pose with a
+    spine target, the segments the spine moves get the ZYZ angles of their frames in
+    `forward` (their pose rows are not used). Computed with JAX (float64 if x64 is on),
+    returned as NumPy.
 
     Args:
         body: the body the file was exported from.
@@ -216,8 +196,10 @@ def mujoco_qpos(body: Body, pose: Pose) -> np.ndarray:
             f"with the same leading axes, got {angles.shape} and {position.shape}"
         )
     flat = jax.tree.map(lambda x: jnp.reshape(x, (-1, *jnp.shape(x)[len(batch) :])), pose)
-    q = _qpos_batch(body, flat)
-    return np.asarray(q).reshape(batch + (q.shape[-1],))
+    position, hinges = _joint_values_batch(body, flat)
+    hinges = np.asarray(hinges)[:, np.asarray(_depth_first(body))]
+    q = np.concatenate([np.asarray(position), hinges.reshape(len(hinges), -1)], axis=-1)
+    return q.reshape(batch + (q.shape[-1],))
 
 
 # --- shared geometry ------------------------------------------------------------------------
@@ -569,7 +551,8 @@ def urdf_joint_values(
     theta is wrapped into [-pi, pi], and s(theta, phi) + tau, when outside [-2 pi, 2 pi]
     (the left arm's table reaches about 3 pi beside its seam), into [-pi, pi]: the same
     rotations, within the file's limits. phi is passed as is (in [0, pi] for every pose
-    diffbody makes). A pose carrying a spine target is bent first, as in `forward`.
+    diffbody makes). For a pose with a spine target, the segments the spine moves get the ZYZ
+    angles of their frames in `forward`, as in `mujoco_qpos`.
 
     Returns:
         {"{seg}_theta": theta, "{seg}_phi": phi, "{seg}_twist": s(theta, phi) + tau} (rad) for
@@ -580,7 +563,8 @@ def urdf_joint_values(
     shape = jnp.shape(pose.angles)
     if shape != (body.n_segments, 3):
         raise ValueError(f"urdf_joint_values: expected angles ({body.n_segments}, 3), got {shape}")
-    values = np.array(_pose_hinges(body, pose), dtype=np.float64)
+    _, hinges = _joint_values_batch(body, jax.tree.map(lambda x: jnp.asarray(x)[None], pose))
+    values = np.array(hinges[0], dtype=np.float64)
     values[:, 0] = _wrap(values[:, 0])
     twist = values[:, 2]
     values[:, 2] = np.where(np.abs(twist) > 2 * np.pi, _wrap(twist), twist)

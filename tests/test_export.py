@@ -201,6 +201,133 @@ def test_mjcf_reroot(male50, fk_male50, mj_model):
         )
 
 
+# --- poses with a moved spine -----------------------------------------------------------------
+SPINE_CHANGE = (0.3, 0.2, -0.15)  # rad, (flexion, axial, lateral) beyond the rest sum
+# Limb rows within their limits, as (w_x, w_y, tau): swing vector and twist (rad).
+LIMB_MOVES = {
+    "left_upper_arm": (1.2, 0.8, 0.6),
+    "right_upper_arm": (-0.5, 1.0, -0.4),
+    "left_forearm": (0.0, 1.2, 0.9),
+    "right_forearm": (0.0, 0.7, -0.7),
+    "left_thigh": (0.3, 0.9, 0.3),
+    "right_shank": (0.0, -1.0, 0.0),
+    "left_foot": (0.0, 0.2, -0.3),
+    "head": (0.3, -0.2, 0.5),
+}
+SPINE_CASES = ("target", "bent", "target_rerooted", "bent_rerooted")
+
+
+def _limb_pose(body):
+    """The standard position with the limbs of `LIMB_MOVES` moved (within their limits)."""
+    rest = body.rest_pose()
+    idx = np.array([body.segment_index(name) for name in LIMB_MOVES])
+    moves = np.array(list(LIMB_MOVES.values()))
+    swing = np.zeros((body.n_segments, 2))
+    twist = np.zeros(body.n_segments)
+    swing[idx], twist[idx] = moves[:, :2], moves[:, 2]
+    rows = db.angles_from_swing(body, jnp.asarray(swing), jnp.asarray(twist))[idx]
+    pose = db.Pose(rest.position, rest.angles.at[idx].set(rows))
+    assert bool(jnp.all(db.within_limits(body, pose)))
+    return pose
+
+
+@pytest.fixture(scope="module")
+def rerooted(male50):
+    return male50.with_root("left_toe_tip")
+
+
+@pytest.fixture(scope="module")
+def spine_cases(male50, fk_male50, rerooted):
+    """{case: (body, compiled forward, pose)}: the limbs of `LIMB_MOVES` moved and the spine
+    bent by a spine target, or by `bend_pose` to the same target; both also on a body
+    re-rooted at the left toe tip, that toe at its standard place."""
+    spine = male50.spine
+    target = jnp.sum(spine.rest, axis=0) + jnp.asarray(SPINE_CHANGE)
+    limbs = _limb_pose(male50)
+    with_target = db.Pose(limbs.position, limbs.angles, target)
+    # Compiled: eager Bendspine takes several times its compile time.
+    bend = jax.jit(
+        lambda pose: db.bend_pose(male50, spine, pose, target, initiator=spine.initiator)
+    )
+    bent, _ = bend(limbs)
+    vertebrae = np.array([male50.segment_index(name) for name in spine.segment_names])
+    assert np.ptp(np.asarray(bent.angles - limbs.angles)[vertebrae]) > 0.01
+    fk_rerooted = jax.jit(lambda pose: db.forward(rerooted, pose))
+    at_toe = lambda pose: db.Pose(rerooted.rest_position, pose.angles, pose.spine_target)  # noqa: E731
+    return {
+        "target": (male50, fk_male50, with_target),
+        "bent": (male50, fk_male50, bent),
+        "target_rerooted": (rerooted, fk_rerooted, at_toe(with_target)),
+        "bent_rerooted": (rerooted, fk_rerooted, at_toe(bent)),
+    }
+
+
+def _rigid_points(body, fk, segments, local):
+    """Points fixed in their segments' twisted frames (the export's rigid links), world."""
+    R = np.asarray(fk.R_world_twisted)[segments]
+    p = np.asarray(fk.joint_positions)[np.asarray(body.proximal_joint)[segments]]
+    return p + np.einsum("kij,kj->ki", R, local)
+
+
+@pytest.mark.parametrize("case", SPINE_CASES)
+def test_mjcf_moved_spine_matches_forward(spine_cases, mj_model, case):
+    """Poses whose spine is bent (by a spine target or by `bend_pose`), also re-rooted: every
+    joint and twisted frame where `forward` puts them; spheres and feature sites where the
+    rigid links carry them (full twist, module docstring)."""
+    body, fk_fn, pose = spine_cases[case]
+    model = mj_model
+    fk = fk_fn(pose)
+    data = _mj_state(model, mujoco_qpos(body, pose))
+    joints = np.asarray(fk.joint_positions)
+    bodies = _ids(model, "body", body.segment_names)
+    joint_sites = _ids(model, "site", [body.joint_names[j] for j in body.distal_joint])
+    np.testing.assert_allclose(
+        data.xpos[bodies], joints[list(body.proximal_joint)], rtol=0, atol=TOL
+    )
+    np.testing.assert_allclose(
+        data.site_xpos[joint_sites], joints[list(body.distal_joint)], rtol=0, atol=TOL
+    )
+    np.testing.assert_allclose(
+        data.xmat[bodies].reshape(-1, 3, 3), np.asarray(fk.R_world_twisted), rtol=0, atol=TOL
+    )
+    sph_seg = np.asarray(body.sphere_segment)
+    origins = np.asarray(body.sphere_origins)
+    geoms = _ids(
+        model, "geom", [f"{body.segment_names[s]}_sphere_{k}" for k, s in enumerate(sph_seg)]
+    )
+    np.testing.assert_allclose(
+        data.geom_xpos[geoms], _rigid_points(body, fk, sph_seg, origins), rtol=0, atol=TOL
+    )
+    f_sph = np.asarray(body.feature_sphere)
+    local = origins[f_sph] + np.asarray(body.sphere_radii)[f_sph, None] * np.asarray(
+        body.feature_directions
+    )
+    features = _ids(model, "site", body.feature_names)
+    np.testing.assert_allclose(
+        data.site_xpos[features], _rigid_points(body, fk, sph_seg[f_sph], local), rtol=0, atol=TOL
+    )
+    # The twisted limbs and head carry features away from their distal ends, so the rigid
+    # links and diffbody's partial twist do differ there (by centimetres).
+    gap = np.linalg.norm(data.site_xpos[features] - np.asarray(fk.feature_points), axis=1)
+    assert gap.max() > 0.01
+
+
+def test_mujoco_qpos_spine_target_rows(male50, spine_cases):
+    """With a spine target, the limbs keep their pose angles as hinge values and the
+    vertebra rows of the pose are not used (the target sets them)."""
+    _, _, pose = spine_cases["target"]
+    names = mujoco_joint_names(male50)
+    q = mujoco_qpos(male50, pose)
+    for seg in LIMB_MOVES:
+        i = male50.segment_index(seg)
+        for k, hinge in enumerate(("theta", "phi")):
+            assert q[names.index(f"{seg}_{hinge}")] == float(pose.angles[i, k])
+    vertebrae = np.array([male50.segment_index(name) for name in male50.spine.segment_names])
+    moved = pose.angles.at[vertebrae].add(0.2)
+    q_moved = mujoco_qpos(male50, db.Pose(pose.position, moved, pose.spine_target))
+    np.testing.assert_array_equal(q_moved, q)
+
+
 # --- URDF against an independent reader -------------------------------------------------------
 def _rot_axis(axis, q):
     """Rotation by q about the unit axis (Rodrigues)."""
@@ -320,6 +447,35 @@ def test_urdf_chain_matches_forward(male50, fk_male50, tmp_path):
                 rtol=0,
                 atol=TOL,
             )
+
+
+@pytest.mark.parametrize("case", SPINE_CASES)
+def test_urdf_moved_spine_matches_forward(spine_cases, tmp_path_factory, case):
+    """The same poses in the URDF: link frames as `forward`'s relative to the whole body (the
+    file fixes the whole body at its standard placement, where the default-root poses
+    leave it; a re-rooted body moves it)."""
+    body, fk_fn, pose = spine_cases[case]
+    path = export_urdf(body, tmp_path_factory.mktemp("urdf") / "body.urdf")
+    values = urdf_joint_values(body, pose)
+    robot, frames = urdf_link_frames(path, values)
+    fk = fk_fn(pose)
+    R_fk, joints = np.asarray(fk.R_world_twisted), np.asarray(fk.joint_positions)
+    p_fk = joints[list(body.proximal_joint)]
+    R0, p0 = frames[body.segment_names[0]]
+    if not case.endswith("rerooted"):
+        np.testing.assert_allclose(R0, R_fk[0], rtol=0, atol=TOL)
+        np.testing.assert_allclose(p0, p_fk[0], rtol=0, atol=TOL)
+    for i, seg in enumerate(body.segment_names):
+        R, p = frames[seg]
+        np.testing.assert_allclose(R0.T @ R, R_fk[0].T @ R_fk[i], rtol=0, atol=TOL)
+        np.testing.assert_allclose(
+            R0.T @ (p - p0), R_fk[0].T @ (p_fk[i] - p_fk[0]), rtol=0, atol=TOL
+        )
+    for joint in robot.findall("joint"):
+        if joint.get("type") == "revolute":
+            limit = joint.find("limit")
+            q = values[joint.get("name")]
+            assert float(limit.get("lower")) <= q <= float(limit.get("upper")), joint.get("name")
 
 
 def test_rotation_conversions_round_trip():
