@@ -19,9 +19,10 @@ from ._orientation import (
     vector_to_inclination_azimuth,
 )
 from ._posture import apply_standard_orientation, pose_from_joint_positions
-from ._reach import ReachResult, Target, solve_reach
+from ._reach import ReachResult, ReachStatus, solve_reach
 from ._render import draw, render
 from ._spine import BendResult, bend_pose, bendspine, movespine, spine_angles, with_spine_angles
+from ._targets import Target
 
 __version__ = "0.1.0"
 
@@ -67,6 +68,7 @@ __all__ = [
     "with_spine_angles",
     # Reach
     "ReachResult",
+    "ReachStatus",
     "Target",
     "solve_reach",
     "solve_reach_batch",

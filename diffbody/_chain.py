@@ -10,7 +10,7 @@ the solvers' residuals, the post-projection, local frames, the posture from join
 exports all call it with their own per-segment step.
 """
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import jax
@@ -49,7 +49,7 @@ class Chain:
         return self.segments.index(segment)
 
 
-def make_chain(parent: Sequence[int], segments: Sequence[int], bases: Sequence[int]) -> Chain:
+def make_chain(parent: Sequence[int], segments: Iterable[int], bases: Sequence[int]) -> Chain:
     """The chain of `segments` (global indices, any order) of a tree with `parent` (-1 at the
     top), hanging from `bases`: global segment indices (or -1, the world) whose states are
     given to `walk`. Every segment's parent must be a chain segment or a base."""

@@ -72,12 +72,31 @@ def _info(args) -> int:
     return 0
 
 
+def _verdict(out, k: int) -> str:
+    """One target's outcome in words: "reached, residual 0.07 mm" or "not reached: closest
+    12.3 mm, target outside the reach envelope"."""
+    from ._reach import ReachStatus
+
+    mm = 1000.0 * float(out.residuals[k])
+    if not bool(out.valid[k]):
+        return ReachStatus.INVALID_TARGET.describe()
+    if bool(out.reached[k]):
+        return f"reached, residual {mm:.2g} mm"
+    why = (
+        "target outside the reach envelope"
+        if bool(out.beyond[k])
+        else "no posture found within 1 mm"
+    )
+    return f"not reached: closest {mm:.1f} mm, {why}"
+
+
 def _reach(args) -> int:
     import json
 
     import numpy as np
 
-    from ._reach import Target, solve_reach
+    from ._reach import ReachStatus, solve_reach
+    from ._targets import Target
 
     body = _body(args)
     target = np.asarray(args.target, float)
@@ -90,9 +109,8 @@ def _reach(args) -> int:
     )
     rest = np.asarray(body.rest_pose().angles)
     angles = np.degrees(np.asarray(out.pose.angles))
-    residual, reached = float(out.residuals[0]), bool(out.reached[0])
-    print(f"{args.effector} -> {target.tolist()} m: residual {residual:.3g} m, reached {reached}")
-    print(f"solver status {int(out.status)} (0 = successful), {int(out.steps)} steps")
+    verdict = _verdict(out, 0)
+    print(f"{args.effector} -> {target.tolist()} m: {verdict} ({int(out.steps)} solver steps)")
     # Angle changes wrapped into (-180, 180]: theta 179 -> -179 moved 2 degrees, not 358.
     change = (angles - np.degrees(rest) + 180.0) % 360.0 - 180.0
     moved = np.max(np.abs(change), axis=1)
@@ -114,7 +132,7 @@ def _reach(args) -> int:
             "spine_target_deg": spine_target,
             "residuals": np.asarray(out.residuals).tolist(),
             "reached": np.asarray(out.reached).tolist(),
-            "status": int(out.status),
+            "status": ReachStatus(int(out.status)).name.lower(),
             "steps": int(out.steps),
         }
         with open(args.out, "w") as f:
@@ -173,7 +191,8 @@ def _batch(args) -> int:
     import csv
 
     from ._batch import solve_reach_batch
-    from ._reach import Target, resolve_targets
+    from ._reach import ReachStatus
+    from ._targets import Target, resolve_targets
 
     body = _body(args)
     resolve_targets(body, [Target.position(e, [0, 0, 0]) for e in args.effector])
@@ -202,7 +221,7 @@ def _batch(args) -> int:
                     int(out.reached[i, j]),
                     int(out.valid[i, j]),
                 ]
-            w.writerow(cells + [int(out.status[i]), int(out.steps[i])])
+            w.writerow(cells + [ReachStatus(int(out.status[i])).name.lower(), int(out.steps[i])])
     n_reached = int(out.reached.all(axis=1).sum())
     print(f"{n_reached} of {xyz.shape[0]} rows reached; wrote {args.out}")
     return 0

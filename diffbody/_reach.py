@@ -30,6 +30,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ._body import Body, Pose
 from ._problem import Problem, make_problem, reach_bound, scaled_distance, start_links
 from ._projection import needs_projection, project, twists_to_keep
+from ._spine import spine_angles
 from ._starts import seed
 from ._targets import Target, TargetSet, flatten_targets, mask_invalid, resolve_targets
 from ._unknowns import Layout, make_layout, path_to_top
@@ -189,6 +190,10 @@ def _select(take: Array, a, b):
 
 
 # --- the solve ---------------------------------------------------------------------------
+def _is_none(x) -> bool:
+    return x is None
+
+
 def _is_traced(*trees) -> bool:
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(trees))
 
@@ -228,6 +233,11 @@ def _solve_traced(body, layouts, init, ts, starts, max_steps, tols):
         k = jnp.where(jnp.any(tries.ok), first_ok, jnp.argmin(tries.cost))
         a = jax.tree.map(lambda t: t[k], tries)
         steps = steps + jnp.sum(tries.steps)
+        if best is not None and (a.pose.spine_target is None) != (best.pose.spine_target is None):
+            # The limbs' phase leaves the spine as in init: name it as a target, so that
+            # both phases' poses have one structure to select between.
+            total = spine_angles(body, body.spine, init).sum(0)
+            best = eqx.tree_at(lambda b: b.pose.spine_target, best, total, is_leaf=_is_none)
         best = a if best is None else _select(_better(a, best), a, best)
         start_pose = best.pose
     beyond = np.zeros(ts.point_xyz.shape[0], bool)
