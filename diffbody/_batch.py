@@ -228,10 +228,12 @@ def solve_reach_batch(
             ks = np.tile(np.arange(1, starts), len(retry))
             rows = np.repeat(retry, starts - 1)
             b = run(layout, rows_of(start_poses, rows), xyz[rows], ks, "retry")
-            np.add.at(steps, rows, b.steps)
             b_ok = b.ok.reshape(len(retry), starts - 1)
             b_cost = b.cost.reshape(len(retry), starts - 1)
             pick = np.where(b_ok.any(1), b_ok.argmax(1), b_cost.argmin(1))
+            # Steps as solve_reach counts them: the starts tried up to the first that reaches.
+            spent = np.cumsum(b.steps.reshape(len(retry), starts - 1), axis=1)
+            steps[retry] += np.where(b_ok.any(1), spent[np.arange(len(retry)), pick], spent[:, -1])
             chosen = rows_of(b, np.arange(len(retry)) * (starts - 1) + pick)
             current = rows_of(best, retry)
             take = (chosen.ok & ~current.ok) | (

@@ -216,3 +216,84 @@ def test_the_standard_orientation_is_restored_after_the_solve(male50):
     assert abs(float(raw.pose.angles[forearm, 2])) > 0.1
     assert float(out.pose.angles[forearm, 2]) == 0.0
     np.testing.assert_allclose(out.pose.angles[upper], raw.pose.angles[upper], atol=1e-12)
+
+
+def _spine_sum(body, pose):
+    if pose.spine_target is not None:
+        return np.asarray(pose.spine_target)
+    return np.asarray(db.spine_angles(body, body.spine, pose).sum(0))
+
+
+def test_arm_reachable_targets_leave_the_trunk_where_it_was(male50):
+    """Palm positions of random in-limit arm poses (clavicle and all else at rest) are
+    reached with the default unknowns (the whole chain, the spine included), and the arm
+    reaches them alone: each spine sum within 2 degrees of init's, every segment off the
+    left arm and clavicle within 2 degrees of its swing at rest."""
+    rest = male50.rest_pose()
+    palm = male50.feature_index("left_hand.palm")
+    angles = _arm_angles(male50, np.random.default_rng(11), 6)
+    arm = {male50.segment_index(s) for s in ARM + ("left_clavicle",)}
+    others = np.asarray([i for i in range(male50.n_segments) if i not in arm])
+    w_rest = np.asarray(db.swing_vector(male50, rest.angles))[others]
+    for a in angles:
+        target = np.asarray(db.forward(male50, db.Pose(rest.position, a)).feature_points[palm])
+        out = db.solve_reach(male50, [db.Target.position("left_hand.palm", target)])
+        assert int(out.status) == db.ReachStatus.SUCCESS, out.residuals
+        moved = np.degrees(np.abs(_spine_sum(male50, out.pose) - _spine_sum(male50, rest)))
+        assert np.all(moved <= 2.0), moved
+        w = np.asarray(db.swing_vector(male50, out.pose.angles))[others]
+        assert np.degrees(np.max(np.abs(w - w_rest))) <= 2.0
+
+
+def test_the_reach_ladder_bends_the_spine_only_beyond_the_arm(male50):
+    """Targets ever farther in front of the shoulder: the spine stays at rest while the arm
+    reaches, then bends forward, more the farther the target (DESIGN section 6)."""
+    rest = male50.rest_pose()
+    shoulder = np.asarray(db.forward(male50, rest).joint_positions)[
+        male50.joint_index("left_shoulder")
+    ]
+    flexion = []
+    for d in (0.3, 0.5, 0.7, 0.8):
+        target = shoulder + [d, 0.0, -0.1]
+        out = db.solve_reach(male50, [db.Target.position("left_hand.palm", target)])
+        assert bool(out.reached[0]), (d, out.residuals)
+        _check_limits(male50, out.pose)
+        flexion.append(float(_spine_sum(male50, out.pose)[0] - _spine_sum(male50, rest)[0]))
+    assert abs(flexion[0]) < 1e-9 and abs(flexion[1]) < 1e-9  # the arm alone
+    assert flexion[3] > flexion[2] >= 0.0 and flexion[3] > np.radians(5)  # then the trunk
+
+
+def test_status_names_what_happened(male50, palm0):
+    """SUCCESS when reached; UNREACHABLE (and `beyond`) for a target past every chain."""
+    far = db.solve_reach(male50, [db.Target.position("left_hand.palm", palm0 + [3.0, 0, 0])])
+    assert int(far.status) == db.ReachStatus.UNREACHABLE and bool(far.beyond[0])
+    huge = db.solve_reach(male50, [db.Target.position("left_hand.palm", [1e30, 0.0, 1.0])])
+    assert not bool(huge.reached[0]) and np.isfinite(float(huge.residuals[0]))
+    assert bool(huge.valid[0]) and int(huge.status) == db.ReachStatus.UNREACHABLE
+    assert np.all(np.isfinite(np.asarray(huge.pose.angles)))
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        (dict(starts=0), "starts"),
+        (dict(max_steps=0), "max_steps"),
+        (dict(tol_position=-1.0), "tol_position"),
+    ],
+)
+def test_bad_settings_name_the_argument(male50, kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        db.solve_reach(male50, [db.Target.position("left_wrist", [0.2, 0.3, 1.0])], **kwargs)
+
+
+@pytest.mark.parametrize("weight", [-1.0, np.nan, np.inf])
+def test_bad_weights_are_rejected(weight):
+    with pytest.raises(ValueError, match="weight"):
+        db.Target.position("left_wrist", [0.2, 0.3, 1.0], weight=weight)
+
+
+def test_a_zero_axis_is_rejected():
+    with pytest.raises(ValueError, match="axis"):
+        db.Target.axis_direction("left_hand", [0, 0, 0], [0, 0, -1])
+    with pytest.raises(ValueError, match="direction"):
+        db.Target.axis_direction("left_hand", [0, 1, 0], [0, 0, 0])
