@@ -1,13 +1,62 @@
 """What every benchmark prints and how it times: machine and versions, compile time apart
-from the median run time."""
+from the median run time, and the goals table (each figure beside its goal, met or not)."""
 
+import importlib.metadata
 import os
 import platform
 import statistics
 import time
+from dataclasses import dataclass
 
 import jax
+import jax.numpy as jnp
 import numpy as np
+
+TOL_POSITION = 1e-3  # m: what counts as reached
+# Joint limits hold when every stop violation is <= 256 eps of the dtype (rad): float32
+# rounding puts poses on a limit, the standard position included, up to ~40 eps outside.
+# The default tolerance of `diffbody.within_limits`.
+LIMITS_EPS = 256
+SUCCESS_FOR_SPEED = 0.999  # a speed figure counts only at this success rate
+
+
+def select_device(device: str, x64: bool = False, precision: str = "default") -> None:
+    """Run JAX on `device` ("cpu", or "gpu": JAX's default backend, which must be a GPU),
+    with float64 if `x64`, and matmuls at `precision` ("default": JAX's, which on a GPU
+    rounds float32 products to TF32; "highest": full float32); call before JAX has started
+    a backend."""
+    if x64:
+        jax.config.update("jax_enable_x64", True)
+    if precision != "default":
+        jax.config.update("jax_default_matmul_precision", precision)
+    if device == "cpu":
+        jax.config.update("jax_platforms", "cpu")
+    elif jax.default_backend() != "gpu":
+        raise SystemExit(f"--device gpu: JAX's default backend is {jax.default_backend()!r}")
+
+
+def child_env(device: str) -> dict[str, str]:
+    """The environment of a subprocess that should run JAX as we do (device, precision)."""
+    env = dict(os.environ)
+    if jax.config.jax_default_matmul_precision:
+        env["JAX_DEFAULT_MATMUL_PRECISION"] = str(jax.config.jax_default_matmul_precision)
+    if device == "cpu":
+        env["JAX_PLATFORMS"] = "cpu"
+    else:  # this process already holds most of the GPU's memory
+        env["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
+    return env
+
+
+def versions(packages: list[str]) -> str:
+    """'name version, ...' of installed distributions (missing ones say so)."""
+
+    def one(p: str) -> str:
+        try:
+            return f"{p} {importlib.metadata.version(p)}"
+        except importlib.metadata.PackageNotFoundError:
+            return f"{p} (not installed)"
+
+    return ", ".join(one(p) for p in packages)
 
 
 def machine() -> str:
@@ -21,12 +70,37 @@ def machine() -> str:
     return (
         f"machine: {cpu}, {os.cpu_count()} cores, device {dev.platform}:{dev.device_kind}\n"
         f"versions: python {platform.python_version()}, jax {jax.__version__}, "
-        f"numpy {np.__version__}, dtype {'float64' if jax.config.jax_enable_x64 else 'float32'}"
+        f"numpy {np.__version__}, dtype {'float64' if jax.config.jax_enable_x64 else 'float32'} "
+        f"(matmul precision {jax.config.jax_default_matmul_precision or 'default'}), "
+        f"{versions(['diffbody', 'optimistix', 'equinox', 'lineax'])}"
     )
 
 
+def load_body(**kwargs):
+    """`diffbody.load_body`, its arrays in JAX's default float type (float32 unless x64)."""
+    import diffbody as db
+
+    dtype = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
+    body = db.load_body(**kwargs)
+    return jax.tree.map(lambda x: x.astype(dtype) if isinstance(x, jax.Array) else x, body)
+
+
+def limits_tol(dtype=None) -> float:
+    """rad: the stop violation up to which a pose counts as within the limits (`dtype`:
+    default JAX's float type)."""
+    dtype = dtype or (jnp.float64 if jax.config.jax_enable_x64 else jnp.float32)
+    return LIMITS_EPS * float(jnp.finfo(dtype).eps)
+
+
+def timed(fn, *args, **kwargs):
+    """(fn's result, once ready; wall seconds)."""
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(fn(*args, **kwargs))
+    return out, time.perf_counter() - t0
+
+
 def bench(fn, args, repeats: int) -> tuple[float, float]:
-    """(compile seconds, median run seconds)."""
+    """(compile seconds, median run seconds) of jit(fn) on args, after one warm-up run."""
     t0 = time.perf_counter()
     compiled = jax.jit(fn).lower(*args).compile()
     compile_s = time.perf_counter() - t0
@@ -37,3 +111,67 @@ def bench(fn, args, repeats: int) -> tuple[float, float]:
         jax.block_until_ready(compiled(*args))
         runs.append(time.perf_counter() - t0)
     return compile_s, statistics.median(runs)
+
+
+@dataclass(frozen=True)
+class Goal:
+    """One figure beside its goal. `met` is None when the figure was not measured."""
+
+    figure: str
+    measured: str
+    goal: str
+    met: bool | None
+    success: str = ""  # the success rate a speed figure was taken at ("" where none applies)
+
+
+def goal(
+    figure: str,
+    value: float,
+    target: float,
+    *,
+    fmt: str,
+    unit: str = "",
+    op: str = ">=",
+    success: float | None = None,
+) -> Goal:
+    """A Goal for a number: met when `value op target` (op ">=", "<" or "<="), and, when a
+    `success` fraction is given (speed figures), only at >= SUCCESS_FOR_SPEED of it."""
+    compare = {">=": np.greater_equal, "<": np.less, "<=": np.less_equal}[op]
+    met = bool(np.isfinite(value) and compare(value, target))
+    if success is not None:
+        met = met and success >= SUCCESS_FOR_SPEED
+    shown = "" if success is None else f"{success:.1%}"
+    return Goal(figure, f"{value:{fmt}}{unit}", f"{op} {target:{fmt}}{unit}", met, shown)
+
+
+def not_measured(figure: str, goal_text: str, why: str) -> Goal:
+    return Goal(figure, f"({why})", goal_text, None)
+
+
+def print_goals(goals: list[Goal], title: str) -> None:
+    """The goals table: figure, measured, success rate, goal, met / not met."""
+    print(f"\n{title}")
+    print(
+        f"  speed figures count only at >= {SUCCESS_FOR_SPEED:.1%} of targets within "
+        f"{TOL_POSITION * 1e3:g} mm and within the joint limits (success column)"
+    )
+    header = ("figure", "measured", "success", "goal", "met / not met")
+    w = (
+        max(len(header[0]), *(len(g.figure) for g in goals)),
+        max(len(header[1]), *(len(g.measured) for g in goals)),
+        7,
+        max(len(header[3]), *(len(g.goal) for g in goals)),
+    )
+    print(
+        f"  {header[0]:<{w[0]}}  {header[1]:>{w[1]}}  {header[2]:>{w[2]}}  "
+        f"{header[3]:>{w[3]}}  {header[4]}"
+    )
+    print(f"  {'-' * w[0]}  {'-' * w[1]}  {'-' * w[2]}  {'-' * w[3]}  {'-' * len(header[4])}")
+    for g in goals:
+        met = "not measured" if g.met is None else ("met" if g.met else "not met")
+        print(
+            f"  {g.figure:<{w[0]}}  {g.measured:>{w[1]}}  {g.success:>{w[2]}}  "
+            f"{g.goal:>{w[3]}}  {met}"
+        )
+    counted = [g for g in goals if g.met is not None]
+    print(f"  {sum(g.met for g in counted)} of {len(counted)} measured goals met")

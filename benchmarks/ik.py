@@ -1,243 +1,633 @@
-"""Inverse-kinematics speed, success and compile time, against IKPy and pytorch_kinematics.
+"""Inverse kinematics: every figure beside its goal (met / not met), with the machine and versions.
 
-Each figure is printed beside the project's goal for it (met / not met).
-
-    python benchmarks/ik.py [--n 1000] [--n-ikpy 200] [--n-body 256] [--repeats 20]
-                            [--chunk-size 4096] [--x64] [--skip-peers]
+    python benchmarks/ik.py [--device cpu|gpu] [--quick] [--skip-peers] [--skip-cli]
+                            [--skip-fk] [--n N] [--n-ikpy N] [--n-body N] [--repeats N]
+                            [--chunk-size N] [--x64] [--matmul-precision default|highest]
 
 Targets: the palm (`left_hand.palm`) of random left-arm poses within diffbody's anatomical
-limits (`peers.arm_poses`, `peers.palm_positions`, fixed rng seeds), so every target is
-reachable; every solver gets the same targets. An error is the distance from the target of
-the palm at the answer (diffbody: its reported residual; peers: their own forward
-kinematics), success is an error of at most 1 mm.
+limits (`peers.arm_poses`, `peers.palm_positions`, fixed seeds): the upper arm, forearm and
+hand move, everything else stays at rest, so every target is reachable by the arm alone.
+A target counts as solved ("success") when the palm of the answer, by `forward` at full
+float32 precision (not the solver's own residual), is within 1 mm of it and the answer is
+within the joint limits (`diffbody.stop_violation` <= 256 eps of the dtype, 3e-5 rad in
+float32: `within_limits`' default, above float32 rounding; a pose carrying a spine target
+is checked with its vertebrae bent to it, as `forward` bends them). A speed figure counts
+only at >= 99.9 % success, and its success rate is printed beside it.
 
-(a) Left arm, shoulder to palm: the unknowns of the upper arm, forearm and hand, trunk and
-clavicle at rest (the peers' problem, see benchmarks/peers.py). diffbody solves `--n`
-targets with `solve_reach_batch(..., segments=arm)` in two settings, the default (up to 8
-starts of 30 steps: every target from the initial posture, then the misses from the other
-starts) and 1 start only. Compile time: the first call on one chunk compiles and solves it; the
-full run after it reuses the compiled function, so compile = first call - one chunk's share
-of the run. The peers' setup is building their chain plus one warm-up solve; IKPy (one
-SciPy least-squares per target, tens of solves/s) gets only the first `--n-ikpy` targets.
-The last column is diffbody's default solves/s over the row's.
+The figures (goals for a 2-core CPU, float32, the default body `diffbody.load_body()`):
 
-(b) Whole body with the spine: palm targets made the same way (other seeds), with
-`solve_reach`'s default unknowns (every segment from the root to the palm, the spine as its
-Bendspine target, root fixed). A single `solve_reach` call: its first call (compile + one
-solve) for 1 and up to 8 starts, then the median over `--repeats` further calls on other targets
-(same shapes: no recompile) of the wall time a user sees, Python-side work included. Then
-`solve_reach_batch` on `--n-body` targets, timed as in (a).
+1. CLI: the README command `diffbody reach --effector left_hand.palm --target 0.35 0.3 1.1
+   --out reach.json --png reach.png`, end-to-end wall time of the subprocess with an empty
+   compilation cache (a fresh `JAX_COMPILATION_CACHE_DIR`), < 10 s; then again with the
+   cache it filled, < 3 s. (`--skip-cli`)
+2. `solve_reach` on the whole body (default unknowns: root to palm, the spine as its
+   Bendspine target, root fixed), one palm target: the first call (trace, compile, solve),
+   timed inside a fresh subprocess with no compilation cache, < 5 s.
+3. The same, warm: median wall time over `--repeats` calls on other targets (same shapes,
+   Python-side work included), < 2 ms.
+4. `solve_reach_batch` on the left arm (segments upper arm, forearm, hand), `--n` targets:
+   compile time = first call - a second identical call (the run time), < 5 s; success
+   >= 99.9 %; solves/s over pytorch_kinematics' on the same targets in the same run, >= 10x
+   (`--skip-peers`; IKPy is run on the first `--n-ikpy` targets for reference).
+5. `solve_reach_batch` on the whole body (default unknowns), `--n-body` targets: solves/s of
+   the second call, >= 5,000.
+6. Posture on arm-reachable targets (those of 3 and 5): the largest change of the spine
+   target from the initial posture's spine (`spine_angles(body, body.spine,
+   body.rest_pose()).sum(0)`) per component, and the largest swing change (`swing_vector`)
+   of any segment other than the left arm and left clavicle, <= 2 degrees each: a target
+   the arm can reach should move the arm only.
+7. `forward` on the full body (spheres, features, center of gravity) under jit(vmap) on
+   100,000 poses, poses/s over MuJoCo's `mj_kinematics` on the exported MJCF, one pose at a
+   time from a Python loop (`fk.mujoco_comparison`), >= 10x. (`--skip-fk`)
 
-Float32 by default (what a user gets; the body is cast to it), float64 with `--x64`.
+`--device gpu` runs diffbody on JAX's default backend (a GPU) with an arm batch of 100,000
+and a whole-body batch of 4,096, each in one chunk, and pytorch_kinematics on torch's CUDA
+device; its goals: arm >= 1,000,000 solves/s and >= 5x pytorch_kinematics, whole body >=
+100,000 solves/s (the other goals as on the CPU). `--quick` takes small batches and few
+repeats: a smoke run whose figures are not the goals' sizes. On a GPU, JAX's default
+matmul precision rounds float32 products to TF32 (about 3 decimal digits), in the solver as
+everywhere; `--matmul-precision highest` runs everything at full float32 precision.
+
+Peer settings: benchmarks/peers.py (pytorch_kinematics: 4 starts, batched, 1 CPU thread).
+Float32 by default (what a user gets), float64 with `--x64` (the CLI runs in float32).
 """
 
 import argparse
-import importlib.metadata
+import importlib.util
+import json
+import shutil
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from common import machine
+from common import (
+    TOL_POSITION,
+    Goal,
+    child_env,
+    goal,
+    limits_tol,
+    load_body,
+    machine,
+    not_measured,
+    print_goals,
+    select_device,
+    timed,
+    versions,
+)
 
 ARM_SEGMENTS = ("left_upper_arm", "left_forearm", "left_hand")
-TOL = 1e-3  # m: what counts as reached
-GOAL_SOLVES_PER_S = 100_000
-GOAL_SUCCESS = 0.995
-GOAL_PEER_RATIO = 10.0
-GOAL_SINGLE_S = 2e-3
-GOAL_COMPILE_S = 5.0
+ARM_AND_CLAVICLE = ARM_SEGMENTS + ("left_clavicle",)
+EFFECTOR = "left_hand.palm"
+CLI_TARGET = (0.35, 0.3, 1.1)
+
+GOAL_CLI_COLD_S = 10.0
+GOAL_CLI_WARM_S = 3.0
+GOAL_FIRST_CALL_S = 5.0
+GOAL_WARM_S = 2e-3
+GOAL_ARM_COMPILE_S = 5.0
+GOAL_ARM_SUCCESS = 0.999
+GOAL_PEER_RATIO = {"cpu": 10.0, "gpu": 5.0}
+GOAL_BODY_SOLVES_PER_S = {"cpu": 5_000, "gpu": 100_000}
+GOAL_ARM_SOLVES_PER_S_GPU = 1_000_000
+GOAL_POSTURE_DEG = 2.0
+
+
+# --- checking answers -----------------------------------------------------------------------
+def _bent(body, pose):
+    """The pose with its vertebrae bent to its spine target, as `forward` bends them."""
+    import diffbody as db
+
+    if pose.spine_target is None:
+        return pose
+    spine = body.spine
+    out = db.bendspine(spine, spine.rest, pose.spine_target, initiator=spine.initiator)
+    return db.with_spine_angles(body, spine, pose, out.angles)
+
+
+def check(body, poses, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Independently of the solver's own report: the palm's distance from its target (m) by
+    `forward`, and the largest stop violation (rad, <= 0 inside the limits), of each of a
+    batch of poses; at full float32 precision (a GPU's default matmul precision is lower)."""
+    import diffbody as db
+
+    palm = body.feature_index(EFFECTOR)
+
+    def one(pose, xyz):
+        error = jnp.linalg.norm(db.forward(body, pose).feature_points[palm] - xyz)
+        return error, jnp.max(db.stop_violation(body, _bent(body, pose)))
+
+    poses = jax.tree.map(jnp.asarray, poses)
+    xyz = jnp.asarray(targets, body.lengths.dtype).reshape(-1, 3)
+    with jax.default_matmul_precision("highest"):
+        errors, violations = jax.jit(jax.vmap(one))(poses, xyz)
+    return np.asarray(errors, np.float64), np.asarray(violations, np.float64)
 
 
 @dataclass(frozen=True)
-class Row:
-    """One solver's run over a batch of targets."""
+class Solved:
+    """Answers to a batch of palm targets, checked by `check`."""
 
-    solver: str
-    settings: str
-    setup_s: float  # diffbody: compile; peers: chain + one warm-up solve
-    run_s: float
-    errors: np.ndarray  # (n,) m
+    errors: np.ndarray  # (n,) m: the palm's distance from the target
+    violations: np.ndarray  # (n,) rad: largest stop violation
+    reported: np.ndarray  # (n,) m: the solver's residual
+    tol_limits: float
+
+    @property
+    def ok(self) -> np.ndarray:
+        return (self.errors <= TOL_POSITION) & (self.violations <= self.tol_limits)
 
     @property
     def success(self) -> float:
-        return float(np.mean(self.errors <= TOL))
+        return float(np.mean(self.ok))
+
+    def summary(self) -> str:
+        mm = f"{TOL_POSITION * 1e3:g} mm"
+        near = np.mean(self.errors <= TOL_POSITION)
+        inside = np.mean(self.violations <= self.tol_limits)
+        gap = np.max(np.abs(self.errors - self.reported))
+        return (
+            f"{self.success:.1%} within {mm} and limits ({near:.1%} within {mm}, median "
+            f"{np.median(self.errors) * 1e3:.3f} mm, the solver's residual off by <= "
+            f"{gap * 1e3:.1e} mm; {inside:.1%} within limits, largest stop violation "
+            f"{np.max(self.violations):.1e} rad)"
+        )
+
+
+def checked(body, result, targets: np.ndarray, tol_limits: float | None = None) -> Solved:
+    """A `ReachResult` of one palm target per row (batched, or one solve_reach result)."""
+    reported = np.asarray(result.residuals, np.float64).reshape(-1)
+    pose = result.pose
+    if np.ndim(pose.position) == 1:
+        pose = jax.tree.map(lambda x: jnp.asarray(x)[None], pose)
+    errors, violations = check(body, pose, targets)
+    tol = limits_tol() if tol_limits is None else tol_limits
+    return Solved(errors, violations, reported, tol)
+
+
+# --- 1. the command line ---------------------------------------------------------------------
+@dataclass(frozen=True)
+class CliRun:
+    wall_s: float
+    solved: Solved | None  # None: the command failed
+    output: str
+
+
+def _diffbody_command() -> list[str]:
+    script = Path(sys.executable).with_name("diffbody")
+    if script.exists():
+        return [str(script)]
+    found = shutil.which("diffbody")
+    return [found] if found else [sys.executable, "-m", "diffbody"]
+
+
+def run_cli(body, device: str, cache_dir: str, out_dir: str) -> CliRun:
+    """The README's reach command, end to end, with JAX's compilation cache in `cache_dir`."""
+    import diffbody as db
+
+    out, png = Path(out_dir) / "reach.json", Path(out_dir) / "reach.png"
+    command = _diffbody_command() + ["reach", "--effector", EFFECTOR, "--target"]
+    command += [str(x) for x in CLI_TARGET] + ["--out", str(out), "--png", str(png)]
+    env = child_env(device)
+    env["JAX_COMPILATION_CACHE_DIR"] = cache_dir
+    env.pop("DIFFBODY_NO_CACHE", None)
+    for path in (out, png):
+        path.unlink(missing_ok=True)
+    wall_s, proc = _run(command, env)
+    if proc.returncode != 0 or not out.exists() or not png.exists():
+        return CliRun(wall_s, None, proc.stdout + proc.stderr)
+    data = json.loads(out.read_text())
+    angles = np.radians([data["angles_deg"][name] for name in body.segment_names])
+    spine = data["spine_target_deg"]
+    pose = db.Pose(
+        position=jnp.asarray(data["position"], body.lengths.dtype)[None],
+        angles=jnp.asarray(angles, body.lengths.dtype)[None],
+        spine_target=None if spine is None else jnp.asarray(np.radians(spine))[None],
+    )
+    # The command runs in float32 whatever this process does, and its JSON holds degrees.
+    errors, violations = check(body, pose, np.asarray(CLI_TARGET))
+    reported = np.asarray(data["residuals"][:1], np.float64)
+    return CliRun(
+        wall_s, Solved(errors, violations, reported, limits_tol(jnp.float32)), proc.stdout
+    )
+
+
+def _run(command: list[str], env: dict[str, str]):
+    """(wall seconds, the finished process)."""
+    t0 = time.perf_counter()
+    proc = subprocess.run(command, env=env, capture_output=True, text=True)
+    return time.perf_counter() - t0, proc
+
+
+# --- 2. the first call in a fresh process ------------------------------------------------------
+def first_call_child(xyz: list[float]) -> None:
+    """In a fresh process: time the first whole-body `solve_reach` (trace, compile, solve),
+    then print it with its answer's check as one JSON line."""
+    import diffbody as db
+
+    body = load_body()
+    out, seconds = timed(db.solve_reach, body, [db.Target.position(EFFECTOR, np.asarray(xyz))])
+    solved = checked(body, out, np.asarray(xyz))
+    line = dict(
+        first_call_s=seconds,
+        error=float(solved.errors[0]),
+        violation=float(solved.violations[0]),
+        reported=float(solved.reported[0]),
+        tol_limits=solved.tol_limits,
+    )
+    print(json.dumps(line))
+
+
+def first_call(device: str, x64: bool, xyz: np.ndarray) -> tuple[float, Solved | None, str]:
+    """(first call seconds, its answer checked, the child's output) from a fresh process
+    with JAX's persistent compilation cache off."""
+    command = [sys.executable, str(Path(__file__).resolve()), "--device", device]
+    command += ["--first-call-child", *(repr(float(x)) for x in xyz)] + (["--x64"] if x64 else [])
+    env = child_env(device)
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    env["JAX_ENABLE_COMPILATION_CACHE"] = "false"
+    _, proc = _run(command, env)
+    try:
+        line = json.loads(proc.stdout.strip().splitlines()[-1])
+    except (IndexError, json.JSONDecodeError):
+        return float("nan"), None, proc.stdout + proc.stderr
+    solved = Solved(
+        *(np.array([line[k]]) for k in ("error", "violation", "reported")), line["tol_limits"]
+    )
+    return line["first_call_s"], solved, proc.stdout
+
+
+# --- 4, 5. batches ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Batch:
+    """`solve_reach_batch` on palm targets: a first call, then a second identical one."""
+
+    first_s: float
+    run_s: float  # the second call
+    solved: Solved
+    result: object  # the ReachResult
+
+    @property
+    def compile_s(self) -> float:
+        return self.first_s - self.run_s
 
     @property
     def solves_per_s(self) -> float:
-        return len(self.errors) / self.run_s
+        return len(self.solved.errors) / self.run_s
 
 
-def timed(fn, *args, **kwargs):
-    """(fn's result, once ready; wall seconds)."""
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(fn(*args, **kwargs))
-    return out, time.perf_counter() - t0
+def batch(body, targets: np.ndarray, chunk_size: int | None, **kwargs) -> Batch:
+    import diffbody as db
 
-
-def batch_row(db, body, targets: np.ndarray, chunk_size: int, settings: str, **kwargs) -> Row:
-    """`solve_reach_batch` on the palm targets (n, 3): compile time apart from run time."""
-    chunk = min(chunk_size, len(targets))
-
-    def solve(points):
+    def solve():
         return db.solve_reach_batch(
-            body, ["left_hand.palm"], points, chunk_size=chunk, progress=False, **kwargs
+            body,
+            [EFFECTOR],
+            targets,
+            chunk_size=chunk_size or 4096,
+            progress=False,
+            **kwargs,
         )
 
-    _, first_s = timed(solve, targets[:chunk])
-    out, run_s = timed(solve, targets)
-    n_chunks = -(-len(targets) // chunk)
-    return Row("diffbody", settings, first_s - run_s / n_chunks, run_s, out.residuals[:, 0])
+    _, first_s = timed(solve)
+    out, run_s = timed(solve)
+    return Batch(first_s, run_s, checked(body, out, targets), out)
 
 
-def print_rows(rows: list[Row], reference: Row | None = None) -> None:
-    """A table of rows; the last column is reference's solves/s over the row's."""
-    widths = (18, 26, 7, 8, 8, 7, 9, 10, 10)
-    header = ("solver", "settings", "targets", "setup s", "run s", "<=1mm", "median mm")
-    header += ("solves/s", "diffbody x")
-    print(" ".join(f"{h:>{w}}" for h, w in zip(header, widths)))
-    for r in rows:
-        cells = (r.solver, r.settings, len(r.errors), f"{r.setup_s:.2f}", f"{r.run_s:.3f}")
-        cells += (f"{r.success:.1%}", f"{np.median(r.errors) * 1e3:.2e}")
-        ratio = f"{reference.solves_per_s / r.solves_per_s:.1f}" if reference else "-"
-        cells += (f"{r.solves_per_s:,.0f}", ratio)
-        print(" ".join(f"{c:>{w}}" for c, w in zip(cells, widths)))
+# --- 6. posture --------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Posture:
+    """How far answers moved what the arm alone could have reached without (degrees)."""
+
+    spine_deg: np.ndarray | None  # (n, 3): |spine target - init's| (flexion, axial, lateral)
+    swing_deg: np.ndarray  # (n, n_seg): swing change, 0 on the left arm and clavicle
+    segment_names: tuple[str, ...]
+
+    def over(self, limit: float) -> str:
+        """How many answers move the spine target, or another segment, more than `limit`."""
+        n = len(self.swing_deg)
+        parts = [] if self.spine_deg is None else [f"spine {np.sum(self.spine_deg.max(1) > limit)}"]
+        parts.append(f"other segments {np.sum(self.swing_deg.max(1) > limit)}")
+        worst = self.segment_names[int(np.argmax(self.swing_deg.max(0)))]
+        return f"{', '.join(parts)} of {n} over {limit:g} deg (largest swing: {worst})"
 
 
-def goal(name: str, measured: str, met: bool) -> None:
-    print(f"  {name:<52} {measured:<28} {'met' if met else 'not met'}")
+def posture(body, poses) -> Posture:
+    """Posture changes of answers (batched poses) from the standard position, their init."""
+    import diffbody as db
+
+    rest = body.rest_pose()
+    spine_deg = None
+    if poses.spine_target is not None:
+        init_sum = np.asarray(db.spine_angles(body, body.spine, rest).sum(0))
+        spine_deg = np.degrees(np.abs(np.asarray(poses.spine_target) - init_sum))
+    w0 = np.asarray(db.swing_vector(body, rest.angles))
+    swing = jax.jit(jax.vmap(lambda a: db.swing_vector(body, a)))
+    with jax.default_matmul_precision("highest"):
+        w = np.asarray(swing(jnp.asarray(poses.angles)))
+    change = np.degrees(np.linalg.norm(w - w0, axis=-1))  # (n, n_seg)
+    change[:, [body.segment_index(s) for s in ARM_AND_CLAVICLE]] = 0.0
+    return Posture(spine_deg, change, body.segment_names)
 
 
-def versions(packages: list[str]) -> str:
-    return ", ".join(f"{p} {importlib.metadata.version(p)}" for p in packages)
+def stack(results) -> object:
+    return jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]), *results)
 
 
+# --- the run ---------------------------------------------------------------------------------
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--n", type=int, default=1000, help="arm targets")
-    parser.add_argument("--n-ikpy", type=int, default=200, help="of those, for IKPy")
-    parser.add_argument("--n-body", type=int, default=256, help="whole-body batch targets")
-    parser.add_argument("--repeats", type=int, default=20, help="warm single solves")
-    parser.add_argument("--chunk-size", type=int, default=4096, help="solve_reach_batch's")
+    parser.add_argument(
+        "--device", choices=("cpu", "gpu"), default="cpu", help="gpu: JAX's default backend"
+    )
+    parser.add_argument("--quick", action="store_true", help="small batches: a smoke run")
+    parser.add_argument("--n", type=int, default=None, help="arm targets (1,000; GPU 100,000)")
+    parser.add_argument("--n-ikpy", type=int, default=None, help="of those, for IKPy (200)")
+    parser.add_argument(
+        "--n-body", type=int, default=None, help="whole-body batch (256; GPU 4,096)"
+    )
+    parser.add_argument("--repeats", type=int, default=None, help="warm single solves (20)")
+    parser.add_argument("--chunk-size", type=int, default=None, help="4,096; GPU: the batch")
     parser.add_argument("--x64", action="store_true", help="run in float64")
-    parser.add_argument("--skip-peers", action="store_true", help="diffbody only")
+    parser.add_argument(
+        "--matmul-precision",
+        choices=("default", "highest"),
+        default="default",
+        help="JAX's matmul precision (default: JAX's; on a GPU float32 products round to TF32)",
+    )
+    parser.add_argument("--skip-peers", action="store_true", help="no IKPy, pytorch_kinematics")
+    parser.add_argument("--skip-cli", action="store_true", help="no command-line timings")
+    parser.add_argument("--skip-fk", action="store_true", help="no forward-vs-MuJoCo figure")
+    parser.add_argument("--first-call-child", type=float, nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.x64:
-        jax.config.update("jax_enable_x64", True)
+    select_device(args.device, args.x64, args.matmul_precision)
+    sys.stdout.reconfigure(line_buffering=True)
+    if args.first_call_child:
+        first_call_child(args.first_call_child)
+        return
+    gpu = args.device == "gpu"
+    quick = args.quick
+    n = args.n or (100 if quick else 100_000 if gpu else 1_000)
+    n_ikpy = args.n_ikpy if args.n_ikpy is not None else (10 if quick else 200)
+    n_body = args.n_body or (16 if quick else 4_096 if gpu else 256)
+    repeats = args.repeats or (5 if quick else 20)
     import peers
 
     import diffbody as db
 
-    body = db.load_body()
-    if not args.x64:
-        body = jax.tree.map(
-            lambda x: x.astype(jnp.float32) if isinstance(x, jax.Array) else x, body
-        )
+    body = load_body()
     print(machine())
-    print(f"versions: {versions(['diffbody', 'optimistix', 'equinox'])}")
-    if not args.skip_peers:
-        print(f"peers: {versions(['ikpy', 'pytorch-kinematics', 'torch', 'scipy'])}")
+    print(f"peers: {versions(['pytorch-kinematics', 'torch', 'ikpy', 'mujoco'])}")
+    print(f"body: {body.name}, {body.n_segments} segments; targets: {EFFECTOR} of random")
+    print(f"  in-limit poses of {', '.join(ARM_SEGMENTS)}; success: <= {TOL_POSITION * 1e3:g} mm")
+    print(f"  and stop violation <= {limits_tol():g} rad")
 
-    def palm_targets(n: int, seed: int) -> np.ndarray:
+    def palm_targets(count: int, seed: int) -> np.ndarray:
         rng = np.random.default_rng(seed)
-        return peers.palm_positions(body, peers.arm_poses(body, n, rng))
+        return peers.palm_positions(body, peers.arm_poses(body, count, rng))
 
-    # (a) left arm
-    targets = palm_targets(args.n, seed=0)
-    print(f"\n(a) left arm, shoulder to palm: {args.n} random reachable palm targets")
-    rows = [
-        batch_row(
-            db,
-            body,
-            targets,
-            args.chunk_size,
-            f"starts={starts}, max_steps=30",
-            segments=ARM_SEGMENTS,
-            starts=starts,
-        )
-        for starts in (8, 1)
-    ]
-    default = rows[0]
-    peer_rows = []
-    if not args.skip_peers:
-        with tempfile.TemporaryDirectory() as directory:
-            chain = peers.arm_chain(body, directory)
-            seed_q = peers.rest_joint_values(body, chain)
-            results = [
-                peers.solve_ikpy(chain, targets[: args.n_ikpy], seed_q),
-                peers.solve_pytorch_kinematics(chain, targets, seed_q),
-            ]
-        short = {"ikpy": "defaults", "pytorch_kinematics": f"{peers.PK_RETRIES} starts"}
-        peer_rows = [Row(r.name, short[r.name], r.setup_s, r.run_s, r.errors) for r in results]
-        rows += peer_rows
-    print_rows(rows, reference=default)
-    dtype = "float64" if args.x64 else "float32"
-    print(f"  diffbody: solve_reach_batch, segments={ARM_SEGMENTS}, {dtype}")
-    print("  diffbody x: diffbody's default solves/s over the row's")
-    if not args.skip_peers:
-        print(f"  ikpy: the first {args.n_ikpy} targets only (one SciPy solve per target)")
-        for r in results:
-            print(f"  {r.name} {r.version}: {r.settings}")
+    goals: list[Goal] = []
+    speed_goals = {"cpu": "2-core CPU goals", "gpu": "GPU goals"}[args.device]
 
-    # (b) whole body with the spine
-    single = palm_targets(1 + args.repeats, seed=1)
-    print("\n(b) whole body with the spine: palm targets, default unknowns (root to palm, the")
-    print("    spine as its Bendspine target), root fixed")
-    print(f"{'solve_reach':>18} {'first call s':>13} {'warm median ms':>15} {'<=1mm':>7}")
-    first_s, warm_s = {}, {}
-    for starts in (1, 8):
-
-        def solve(xyz, starts=starts):
-            return db.solve_reach(body, [db.Target.position("left_hand.palm", xyz)], starts=starts)
-
-        _, first_s[starts] = timed(solve, single[0])
-        runs = [timed(solve, xyz) for xyz in single[1:]]
-        warm_s[starts] = statistics.median(t for _, t in runs)
-        reached = np.mean([float(out.residuals[0]) <= TOL for out, _ in runs])
-        print(
-            f"{f'starts={starts}':>18} {first_s[starts]:>13.2f} {warm_s[starts] * 1e3:>15.2f} "
-            f"{reached:>7.1%}"
-        )
-    print("  (starts is traced: the second setting reuses the first's compiled solve)")
-    body_row = batch_row(
-        db, body, palm_targets(args.n_body, seed=2), args.chunk_size, "default, starts=8"
-    )
-    print_rows([body_row])
-
-    print("\ngoals (diffbody's default settings)")
-    goal(
-        f"arm >= {GOAL_SOLVES_PER_S:,} solves/s at >= {GOAL_SUCCESS:.1%}",
-        f"{default.solves_per_s:,.0f}/s at {default.success:.1%}",
-        default.solves_per_s >= GOAL_SOLVES_PER_S and default.success >= GOAL_SUCCESS,
-    )
-    if peer_rows:
-        fastest = max(peer_rows, key=lambda r: r.solves_per_s)
-        ratio = default.solves_per_s / fastest.solves_per_s
-        goal(
-            f">= {GOAL_PEER_RATIO:g}x the fastest peer",
-            f"{ratio:.1f}x {fastest.solver}",
-            ratio >= GOAL_PEER_RATIO,
-        )
+    # 1. the command line
+    print(f"\n1. diffbody reach ... --target {' '.join(map(str, CLI_TARGET))} (subprocess)")
+    cli_goals = ("CLI reach, empty compile cache, wall", "CLI reach, filled compile cache, wall")
+    if args.skip_cli:
+        print("  skipped (--skip-cli)")
+        goals += [not_measured(cli_goals[0], f"< {GOAL_CLI_COLD_S:g} s", "--skip-cli")]
+        goals += [not_measured(cli_goals[1], f"< {GOAL_CLI_WARM_S:g} s", "--skip-cli")]
     else:
-        print(f"  >= {GOAL_PEER_RATIO:g}x the fastest peer: not measured (--skip-peers)")
-    goal(
-        f"whole-body single solve < {GOAL_SINGLE_S * 1e3:g} ms warm",
-        f"{warm_s[8] * 1e3:.2f} ms",
-        warm_s[8] < GOAL_SINGLE_S,
-    )
-    for name, seconds in (
-        ("arm batch", default.setup_s),
-        # starts is traced: the first setting timed compiles for both.
-        ("whole-body single, first call", max(first_s.values())),
-    ):
-        goal(
-            f"first compile < {GOAL_COMPILE_S:g} s: {name}",
-            f"{seconds:.2f} s",
-            seconds < GOAL_COMPILE_S,
+        with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out_dir:
+            runs = [run_cli(body, args.device, cache, out_dir) for _ in range(2)]
+        for name, run, limit in zip(cli_goals, runs, (GOAL_CLI_COLD_S, GOAL_CLI_WARM_S)):
+            if run.solved is None:
+                print(f"  {name}: FAILED after {run.wall_s:.2f} s:\n{run.output}")
+                goals.append(Goal(name, "failed", f"< {limit:g} s", False))
+                continue
+            print(f"  {name}: {run.wall_s:.2f} s; {run.solved.summary()}")
+            goals.append(
+                goal(
+                    name,
+                    run.wall_s,
+                    limit,
+                    fmt=".2f",
+                    unit=" s",
+                    op="<",
+                    success=run.solved.success,
+                )
+            )
+
+    # 2, 3. whole-body solve_reach
+    single = palm_targets(1 + repeats, seed=1)
+    print("\n2, 3. solve_reach, whole body (default unknowns), one palm target")
+    first_s, first_solved, output = first_call(args.device, args.x64, single[0])
+    name = "solve_reach whole body, first call (fresh process)"
+    if first_solved is None:
+        print(f"  first call: FAILED:\n{output}")
+        goals.append(Goal(name, "failed", f"< {GOAL_FIRST_CALL_S:g} s", False))
+    else:
+        print(f"  first call in a fresh process: {first_s:.2f} s; {first_solved.summary()}")
+        goals.append(
+            goal(
+                name,
+                first_s,
+                GOAL_FIRST_CALL_S,
+                fmt=".2f",
+                unit=" s",
+                op="<",
+                success=first_solved.success,
+            )
         )
+
+    def solve_one(xyz):
+        return db.solve_reach(body, [db.Target.position(EFFECTOR, xyz)])
+
+    _, here_s = timed(solve_one, single[0])
+    runs = [timed(solve_one, xyz) for xyz in single[1:]]
+    warm_s = statistics.median(t for _, t in runs)
+    warm = checked(body, stack([out for out, _ in runs]), single[1:])
+    print(f"  first call in this process: {here_s:.2f} s (compile + solve)")
+    print(
+        f"  warm: median {warm_s * 1e3:.2f} ms over {len(runs)} targets "
+        f"(min {min(t for _, t in runs) * 1e3:.2f}, max {max(t for _, t in runs) * 1e3:.2f}); "
+        f"{warm.summary()}"
+    )
+    goals.append(
+        goal(
+            f"solve_reach whole body, warm, median of {len(runs)}",
+            warm_s * 1e3,
+            GOAL_WARM_S * 1e3,
+            fmt=".2f",
+            unit=" ms",
+            op="<",
+            success=warm.success,
+        )
+    )
+
+    # 4. the left arm, and the peers
+    chunk = args.chunk_size or (max(n, n_body) if gpu else None)
+    targets = palm_targets(n, seed=0)
+    print(f"\n4. solve_reach_batch, left arm ({', '.join(ARM_SEGMENTS)}), {n:,} targets")
+    arm = batch(body, targets, chunk, segments=ARM_SEGMENTS)
+    print(
+        f"  first call {arm.first_s:.2f} s, second {arm.run_s:.3f} s -> compile "
+        f"{arm.compile_s:.2f} s, {arm.solves_per_s:,.0f} solves/s; {arm.solved.summary()}"
+    )
+    goals.append(
+        goal(
+            "solve_reach_batch left arm, compile (first - second call)",
+            arm.compile_s,
+            GOAL_ARM_COMPILE_S,
+            fmt=".2f",
+            unit=" s",
+            op="<",
+            success=arm.solved.success,
+        )
+    )
+    goals.append(
+        goal(
+            f"left arm, {n:,} targets, within 1 mm and limits",
+            arm.solved.success * 100,
+            GOAL_ARM_SUCCESS * 100,
+            fmt=".1f",
+            unit=" %",
+        )
+    )
+    if gpu:
+        goals.append(
+            goal(
+                f"left arm solves/s (batch {n:,})",
+                arm.solves_per_s,
+                GOAL_ARM_SOLVES_PER_S_GPU,
+                fmt=",.0f",
+                success=arm.solved.success,
+            )
+        )
+    ratio_name = "left arm solves/s over pytorch_kinematics'"
+    ratio_goal = GOAL_PEER_RATIO[args.device]
+    if args.skip_peers:
+        print("  peers skipped (--skip-peers)")
+        goals.append(not_measured(ratio_name, f">= {ratio_goal:.1f}x", "--skip-peers"))
+    else:
+        goals.append(peer_figures(body, targets, n_ikpy, arm, gpu, ratio_name, ratio_goal))
+
+    # 5. whole-body batch
+    print(f"\n5. solve_reach_batch, whole body (default unknowns), {n_body:,} targets")
+    whole = batch(body, palm_targets(n_body, seed=2), chunk)
+    print(
+        f"  first call {whole.first_s:.2f} s, second {whole.run_s:.3f} s -> compile "
+        f"{whole.compile_s:.2f} s, {whole.solves_per_s:,.0f} solves/s; {whole.solved.summary()}"
+    )
+    goals.append(
+        goal(
+            f"solve_reach_batch whole body, {n_body:,} targets, solves/s",
+            whole.solves_per_s,
+            GOAL_BODY_SOLVES_PER_S[args.device],
+            fmt=",.0f",
+            success=whole.solved.success,
+        )
+    )
+
+    # 6. posture on arm-reachable targets
+    poses = [stack([out.pose for out, _ in runs]), whole.result.pose]
+    moved = posture(body, jax.tree.map(lambda *a: np.concatenate(a), *poses))
+    print(f"\n6. posture: the {len(moved.swing_deg)} whole-body answers of 3 and 5")
+    print(f"  (init: the standard position); {moved.over(GOAL_POSTURE_DEG)}")
+    spine_name = "arm-reachable targets: max |spine target - init's| (deg)"
+    if moved.spine_deg is None:
+        print("  no spine target in the answers")
+        goals.append(not_measured(spine_name, f"<= {GOAL_POSTURE_DEG:g} deg", "no spine target"))
+    else:
+        largest = moved.spine_deg.max(0)
+        components = ", ".join(f"{a:.2f}" for a in largest)
+        print(f"  largest spine target change (flexion, axial, lateral): {components} deg")
+        goals.append(goal(spine_name, float(largest.max()), GOAL_POSTURE_DEG, fmt=".2f", op="<="))
+    swing = float(moved.swing_deg.max())
+    print(f"  largest swing change off the left arm and clavicle: {swing:.2f} deg")
+    goals.append(
+        goal(
+            "arm-reachable targets: max swing change off left arm + clavicle (deg)",
+            swing,
+            GOAL_POSTURE_DEG,
+            fmt=".2f",
+            op="<=",
+        )
+    )
+
+    # 7. forward against MuJoCo
+    print("\n7. forward, full body, against MuJoCo")
+    from fk import GOAL_MUJOCO_RATIO, MUJOCO_FIGURE, mujoco_comparison, print_comparison
+
+    mujoco_missing = not _importable("mujoco")
+    if args.skip_fk or mujoco_missing:
+        why = "--skip-fk" if args.skip_fk else "mujoco not installed"
+        print(f"  skipped ({why})")
+        goals.append(not_measured(MUJOCO_FIGURE, f">= {GOAL_MUJOCO_RATIO:.1f}x", why))
+    else:
+        comparison = mujoco_comparison(
+            body, 10_000 if quick else 100_000, 1_000 if quick else 10_000, 3 if quick else 5
+        )
+        print_comparison(comparison)
+        goals.append(comparison.goal())
+
+    dtype = "float64" if args.x64 else "float32"
+    title = f"goals ({speed_goals}; diffbody on {args.device}, {dtype}"
+    print_goals(goals, title + (", --quick: small batches" if quick else "") + ")")
+
+
+def _importable(module: str) -> bool:
+    return importlib.util.find_spec(module) is not None
+
+
+def peer_figures(body, targets, n_ikpy: int, arm: Batch, gpu: bool, name: str, ratio_goal: float):
+    """pytorch_kinematics (and IKPy, CPU runs only) on the arm targets; the ratio's Goal."""
+    import peers
+
+    if not _importable("pytorch_kinematics"):
+        print("  pytorch_kinematics not installed (pip install -e '.[bench]')")
+        return not_measured(name, f">= {ratio_goal:.1f}x", "pytorch_kinematics not installed")
+    import torch
+
+    device = "cuda" if gpu else "cpu"
+    if gpu and not torch.cuda.is_available():
+        print("  torch has no CUDA device: pytorch_kinematics not measured")
+        return not_measured(name, f">= {ratio_goal:.1f}x", "no torch CUDA")
+    with tempfile.TemporaryDirectory() as directory:
+        chain = peers.arm_chain(body, directory)
+        seed_q = peers.rest_joint_values(body, chain)
+        results = [peers.solve_pytorch_kinematics(chain, targets, seed_q, device=device)]
+        if n_ikpy and not gpu and _importable("ikpy"):
+            results.append(peers.solve_ikpy(chain, targets[:n_ikpy], seed_q))
+    print(f"  {'':<20} {'targets':>8} {'setup s':>8} {'run s':>8} {'<=1mm':>7} {'solves/s':>10}")
+    print(
+        f"  {'diffbody':<20} {len(targets):>8,} {arm.compile_s:>8.2f} {arm.run_s:>8.3f} "
+        f"{np.mean(arm.solved.errors <= TOL_POSITION):>7.1%} {arm.solves_per_s:>10,.0f}"
+    )
+    for r in results:
+        print(
+            f"  {r.name:<20} {len(r.errors):>8,} {r.setup_s:>8.2f} {r.run_s:>8.3f} "
+            f"{r.success(TOL_POSITION):>7.1%} {r.solves_per_s:>10,.0f}"
+        )
+    for r in results:
+        print(f"  {r.name} {r.version}: {r.settings}")
+    print(
+        "  (peers: success within 1 mm only; their URDF limits are boxes, looser than diffbody's)"
+    )
+    pk = results[0]
+    return goal(
+        f"{name} ({pk.name} on {device})",
+        arm.solves_per_s / pk.solves_per_s,
+        ratio_goal,
+        fmt=".1f",
+        unit="x",
+        success=arm.solved.success,
+    )
 
 
 if __name__ == "__main__":

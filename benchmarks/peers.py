@@ -1,4 +1,4 @@
-"""Peer inverse-kinematics libraries on diffbody's left arm: IKPy and pytorch_kinematics (CPU).
+"""Peer inverse-kinematics libraries on diffbody's left arm: IKPy and pytorch_kinematics.
 
 Both peers solve the same problem as diffbody's reach benchmark: put the palm
 (`left_hand.palm`) of the default body on a world position by moving the left arm, i.e. the
@@ -40,9 +40,10 @@ not from the previous answer. Settings (also in `PeerResult.settings`):
   region reflective, finite-difference Jacobian, SciPy's default tolerances and budget)
   within the URDF bounds. IKPy moves a seed lying on a bound 1e-3 rad inside it.
 - pytorch_kinematics (`solve_pytorch_kinematics`): its batched damped-least-squares solver
-  `PseudoInverseIK`, float32 on the CPU, all targets at once, `PK_RETRIES` starting
-  configurations per target (the seed, then configurations drawn uniformly within the URDF
-  limits with a fixed torch seed: its API's way of escaping poor seeds, see below), at most
+  `PseudoInverseIK`, float32 on the CPU (on a CUDA GPU for `ik.py --device gpu`), all
+  targets at once, `PK_RETRIES` starting configurations per target (the seed, then
+  configurations drawn uniformly within the URDF limits with a fixed torch seed: its API's
+  way of escaping poor seeds, see below), at most
   `PK_MAX_ITERATIONS` iterations, position only (orientation weight 0, orientation
   tolerance infinite), a problem stops once any start is within `PK_POS_TOLERANCE`; its
   library defaults otherwise (learning rate 1, Levenberg-Marquardt damping 0.1, joint
@@ -310,10 +311,12 @@ def solve_pytorch_kinematics(
     retries: int = PK_RETRIES,
     max_iterations: int = PK_MAX_ITERATIONS,
     threads: int | None = PK_THREADS,
+    device: str = "cpu",
 ) -> PeerResult:
     """Solve all palm targets at once with pytorch_kinematics' `PseudoInverseIK` (float32,
-    CPU), from `seed_q` and `retries - 1` random starts within the URDF limits, on `threads`
-    torch threads (None: torch's current setting); see the module docstring."""
+    on torch `device`: "cpu" or "cuda"), from `seed_q` and `retries - 1` random starts
+    within the URDF limits, on `threads` torch CPU threads (None: torch's current setting);
+    see the module docstring."""
     import pytorch_kinematics as pk
     import torch
 
@@ -323,15 +326,16 @@ def solve_pytorch_kinematics(
     torch.set_num_threads(threads or previous_threads)
     try:
         t0 = time.perf_counter()
-        pk_chain = _pk_chain(chain, dtype)
-        low, high = pk_chain.low, pk_chain.high
+        pk_chain = _pk_chain(chain, dtype).to(device=device)
+        low, high = pk_chain.low.cpu(), pk_chain.high.cpu()
         generator = torch.Generator().manual_seed(0)
         starts = torch.cat(
             [
                 torch.as_tensor(seed_q, dtype=dtype)[None],
                 low + (high - low) * torch.rand(retries - 1, len(low), generator=generator),
             ]
-        )
+        ).to(device)
+        low, high = low.to(device), high.to(device)
         solver = pk.PseudoInverseIK(
             pk_chain,
             retry_configs=starts,
@@ -345,25 +349,32 @@ def solve_pytorch_kinematics(
         )
 
         def solve(points: np.ndarray) -> np.ndarray:
-            goal = pk.Transform3d(pos=torch.as_tensor(points, dtype=dtype), dtype=dtype)
+            pos = torch.as_tensor(points, dtype=dtype, device=device)
+            goal = pk.Transform3d(pos=pos, dtype=dtype, device=device)
             sol = solver.solve(goal)
             best = sol.err_pos.argmin(dim=1)
-            return sol.solutions[torch.arange(len(points)), best].double().numpy()
+            # Copying the answers to the host waits for the device.
+            return sol.solutions[torch.arange(len(points), device=device), best].double().cpu()
 
         solve(targets[:1])
         setup_s = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        q = solve(targets)
+        q = solve(targets).numpy()
         run_s = time.perf_counter() - t0
         used_threads = torch.get_num_threads()
+        where = (
+            f"CPU ({used_threads} thread(s))"
+            if torch.device(device).type == "cpu"
+            else torch.cuda.get_device_name(torch.device(device))
+        )
     finally:
         torch.set_num_threads(previous_threads)
 
     reached = pk_palm(_pk_chain(chain, torch.float64), chain, q)
     return _result(
         "pytorch-kinematics",
-        f"PseudoInverseIK, float32, CPU ({used_threads} thread(s)), all targets at "
+        f"PseudoInverseIK, float32, {where}, all targets at "
         f"once; {retries} starts (seed + uniform in URDF limits), <= {max_iterations} "
         f"iterations, position only, tolerance {PK_POS_TOLERANCE:g} m, library defaults "
         "otherwise",
