@@ -20,18 +20,19 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from ._body import Body, Pose
-from ._problem import reach_bound, scaled_distance
 from ._projection import needs_projection, twists_to_keep
 from ._reach import (
     Attempt,
     ReachResult,
     _check_settings,
-    _start_links_jit,
+    _is_none,
     _status,
     attempt,
+    beyond_bound,
     finish,
     phase_layouts,
 )
+from ._spine import spine_angles
 from ._targets import Target, TargetSet, resolve_targets
 
 
@@ -212,14 +213,17 @@ def solve_reach_batch(
     start_poses = jax.tree.map(lambda a: np.repeat(a[None], n, axis=0), init_np)
     todo = np.arange(n)
     for phase, layout in enumerate(layouts):
-        links, _, _ = _start_links_jit(body, init)
-        anchor, bound = reach_bound(body, layout, links)
-        dist = np.asarray(scaled_distance(jnp.asarray(xyz), jnp.asarray(anchor)[None]))
-        with np.errstate(invalid="ignore"):
-            beyond = np.isfinite(xyz).all(-1) & (dist > bound)
+        beyond = beyond_bound(body, layout, init, xyz)
         label = "reach" if phase == 0 else "reach, trunk"
         a = run(layout, rows_of(start_poses, todo), xyz[todo], np.zeros(len(todo), int), label)
         steps[todo] += a.steps
+        if best is not None and best.pose.spine_target is None and a.pose.spine_target is not None:
+            # The limbs' phase leaves the spine as in init: name it as a target, so that
+            # both phases' poses share one structure.
+            total = np.asarray(spine_angles(body, body.spine, init).sum(0))
+            best = eqx.tree_at(
+                lambda b: b.pose.spine_target, best, np.repeat(total[None], n, 0), is_leaf=_is_none
+            )
         best = a if best is None else _merge(best, todo, a)
         # Further starts for the rows that missed with no bound against them, all starts
         # side by side (one row per start), the first that reaches kept.

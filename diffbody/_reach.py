@@ -167,11 +167,11 @@ def phase_layouts(
     return [limbs, full]
 
 
-def _beyond(body: Body, layout: Layout, init: Pose, ts: TargetSet) -> np.ndarray:
-    """Per point target (host): whether it lies beyond the phase's reach bound."""
+def beyond_bound(body: Body, layout: Layout, init: Pose, xyz: np.ndarray) -> np.ndarray:
+    """Whether point targets xyz (..., n_p, 3) lie beyond the phase's reach bound (host)."""
     links, _, _ = _start_links_jit(body, init)
     anchor, bound = reach_bound(body, layout, links)
-    xyz = np.asarray(ts.point_xyz, float)
+    xyz = np.asarray(xyz, float)
     dist = np.asarray(scaled_distance(jnp.asarray(xyz), jnp.asarray(anchor)))
     with np.errstate(invalid="ignore"):
         return np.isfinite(xyz).all(-1) & (dist > bound)
@@ -203,8 +203,8 @@ def _solve_host(body, layouts, init, ts, starts, max_steps, tols):
     best, steps = None, 0
     beyond_final = np.zeros(ts.point_xyz.shape[0], bool)
     start_pose = init
-    for phase, layout in enumerate(layouts):
-        beyond = _beyond(body, layout, start_pose, ts)
+    for layout in layouts:
+        beyond = beyond_bound(body, layout, start_pose, ts.point_xyz)
         beyond_final = beyond
         for k in range(starts if not beyond.any() else 1):
             a = _attempt_jit(body, layout, start_pose, ts, jnp.asarray(k), max_steps, *tols)
@@ -214,7 +214,6 @@ def _solve_host(body, layouts, init, ts, starts, max_steps, tols):
             if bool(a.ok):
                 return best, steps, beyond
         start_pose = best.pose  # the trunk joins from the limbs' closest reach
-        del phase
     return best, steps, beyond_final
 
 

@@ -130,7 +130,7 @@ def make_layout(
     lo, hi = np.asarray(body.swing_lo), np.asarray(body.swing_hi)
     tlo, thi = np.asarray(body.twist_lo), np.asarray(body.twist_hi)
     movable = {int(i) for i in movable} & on_path - {0}
-    spine_on = {i for i in on_path if names[i] in spine_segs}
+    spine_on = {i for i in movable if names[i] in spine_segs}
     free_swing_x = {i for i in movable - spine_on if hi[i, 0] > lo[i, 0]}
     free_swing_y = {i for i in movable - spine_on if hi[i, 1] > lo[i, 1]}
     free_twist = {i for i in movable - spine_on if thi[i] > tlo[i]}
