@@ -10,11 +10,14 @@ phase's reach bound (the sum of its chain's lengths), which decides up front tha
 can reach it.
 
 Each attempt is one optimistix least-squares solve of a `Problem` (one walk per residual
-evaluation) and is compiled once per problem shape; its gradients come from optimistix's
-implicit adjoint. Called with concrete inputs, `solve_reach` drives the phases and starts
-from the host, so only what a target needs is ever compiled or run. Under a JAX
-transformation (jax.grad, jax.jit, jax.vmap of `solve_reach`), the same attempts run
-side by side and the kept one is selected with `jnp.where`.
+evaluation), compiled once per problem shape, that stops as soon as every target is well
+within its tolerance. The solver's loop is never differentiated: under differentiation the
+answer carries the implicit function theorem's derivatives (`implicit`: one Jacobian at
+the answer), so jax.grad of a solve costs about one residual Jacobian more. Called with
+concrete inputs, `solve_reach` drives the phases and starts from the host, so only what a
+target needs is ever compiled or run. Under a JAX transformation (jax.grad, jax.jit,
+jax.vmap of `solve_reach`), the same attempts run side by side and the kept one is selected
+with `jnp.where`.
 """
 
 import enum
@@ -81,16 +84,54 @@ class Attempt(eqx.Module):
 
 
 # --- one attempt -------------------------------------------------------------------------
+class _ReachLM(optx.LevenbergMarquardt):
+    """optimistix's Levenberg-Marquardt (measured against Gauss-Newton and Dogleg: it reaches
+    the most targets from one start), which also stops as soon as every target row is within
+    a hundredth of its tolerance: the pull toward the start only settles redundant
+    directions, and waiting for it to converge would cost most of the steps."""
+
+    def terminate(self, fn, y, args, options, state, tags):
+        done, result = super().terminate(fn, y, args, options, state, tags)
+        close_enough = args[2]
+        rows = state.f_info.residual[: close_enough.shape[0]]
+        reached = ~state.first_step & jnp.all(jnp.abs(rows) <= close_enough)
+        return done | reached, result
+
+
 def _solver(dtype) -> optx.AbstractLeastSquaresSolver:
-    """optimistix's Levenberg-Marquardt (measured against Dogleg and Gauss-Newton: README,
-    "Reach"). float32 cannot resolve relative changes of 1e-8, so its tolerance is looser."""
+    # float32 cannot resolve relative changes of 1e-8, so its tolerance is looser.
     tol = 1e-8 if jnp.finfo(dtype).bits == 64 else 1e-6
-    return optx.LevenbergMarquardt(rtol=tol, atol=tol)
+    return _ReachLM(rtol=tol, atol=tol)
 
 
-def _residuals(x: Array, args: tuple[Problem, TargetSet]) -> Array:
-    problem, targets = args
+def _residuals(x: Array, args: tuple[Problem, TargetSet, Array]) -> Array:
+    problem, targets, _ = args
     return problem.residuals(x, targets)
+
+
+def _close_enough(targets: TargetSet, tol_position: Array, tol_angle: Array) -> Array:
+    """Per target row, the weighted residual below which the solve may stop early."""
+    p = jnp.repeat(targets.point_weight * tol_position, 3)
+    a = jnp.repeat(targets.axis_weight * tol_angle, 3)
+    return 0.01 * jnp.concatenate([p, a])
+
+
+def _no_gradient(tree):
+    return jax.tree.map(lambda a: jax.lax.stop_gradient(a) if eqx.is_array(a) else a, tree)
+
+
+def implicit(problem: Problem, targets: TargetSet, x: Array) -> Array:
+    """x, a minimiser of |residuals|^2 found without differentiating the solver, given the
+    derivatives of the implicit function theorem with respect to everything the problem
+    and the targets depend on: dx = -pinv(J) dr, with J = d residuals / dx at x (full
+    column rank thanks to the pull rows). This is exact where the targets are reached (the
+    residuals' curvature term vanishes with them) and first order otherwise. Its value is
+    x itself."""
+    x = jax.lax.stop_gradient(x)
+    fixed = _no_gradient((problem, targets))
+    J = jax.jacfwd(lambda x: fixed[0].residuals(x, fixed[1]))(x)
+    r = problem.residuals(x, targets)
+    return x - jnp.linalg.pinv(J) @ (r - jax.lax.stop_gradient(r))
 
 
 def attempt(
@@ -102,18 +143,25 @@ def attempt(
     max_steps: int,
     tol_position: Float[Array, ""],
     tol_angle: Float[Array, ""],
+    differentiable: bool = False,
 ) -> Attempt:
     """Solve one phase's problem from start `start` (traced: 0 is `init`). Non-finite
-    targets take no part; a solve that leaves the finite numbers falls back to its start."""
+    targets take no part; a solve that leaves the finite numbers falls back to its start.
+    The solver's loop is never differentiated; with `differentiable`, the answer carries
+    the implicit function theorem's derivatives (`implicit`)."""
     safe, ok_p, ok_a = mask_invalid(targets)
     problem = make_problem(body, layout, init)
-    x0 = seed(problem.x0, start, 6 if layout.root else 0)
+    fixed = _no_gradient((problem, safe, tol_position, tol_angle))
+    x0 = seed(fixed[0].x0, start, 6 if layout.root else 0)
     if layout.n_free:
+        args = (fixed[0], fixed[1], _close_enough(*fixed[1:]))
         sol = optx.least_squares(
-            _residuals, _solver(x0.dtype), x0, (problem, safe), max_steps=max_steps, throw=False
+            _residuals, _solver(x0.dtype), x0, args, max_steps=max_steps, throw=False
         )
         x = jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value, x0)
         steps = jnp.asarray(sol.stats["num_steps"])
+        if differentiable:
+            x = implicit(problem, safe, x)
     else:
         x, steps = x0, jnp.asarray(0)
     err_p, err_a = problem.errors(x, safe)
@@ -155,8 +203,7 @@ def phase_layouts(
 ) -> list[Layout]:
     """The layouts of the phases: the limbs alone, then everything (one layout when the two
     coincide or the limbs have no unknown on a target's chain)."""
-    points = [int(i) for i in np.asarray(ts.point_index)]
-    axes = [int(i) for i in np.asarray(ts.axis_segment)]
+    points, axes = ts.point_index, ts.axis_segment
     movable = set(range(body.n_segments))
     if segments is not None:
         movable = {body.segment_index(name) for name in segments}
@@ -224,7 +271,7 @@ def _solve_traced(body, layouts, init, ts, starts, max_steps, tols):
     for layout in layouts:
 
         def one(k, layout=layout, start_pose=start_pose):
-            return attempt(body, layout, start_pose, ts, k, max_steps, *tols)
+            return attempt(body, layout, start_pose, ts, k, max_steps, *tols, True)
 
         tries = jax.vmap(one)(jnp.arange(starts))
         # The first start that reaches, else the closest.

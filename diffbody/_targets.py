@@ -9,7 +9,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Float
 
 from ._body import Body
 
@@ -82,10 +82,11 @@ class Target:
 class TargetSet(eqx.Module):
     """Targets as arrays (one problem; batch them with a leading axis)."""
 
-    point_index: Int[Array, " n_p"]  # into [joints, features, center of gravity]
+    # The effectors are structure (they decide what a solve walks): static, never traced.
+    point_index: tuple[int, ...] = eqx.field(static=True)  # into [joints, features, COG]
     point_xyz: Float[Array, "n_p 3"]  # m
     point_weight: Float[Array, " n_p"]
-    axis_segment: Int[Array, " n_a"]
+    axis_segment: tuple[int, ...] = eqx.field(static=True)
     axis_local: Float[Array, "n_a 3"]  # unit, segment's twisted frame
     axis_direction: Float[Array, "n_a 3"]  # unit, world
     axis_weight: Float[Array, " n_a"]
@@ -135,10 +136,10 @@ def resolve_targets(body: Body, targets: Sequence[Target]) -> tuple[TargetSet, l
     order += [i for i, t in enumerate(targets) if t.kind == "axis"]
     xyz = jnp.stack([jnp.asarray(t.value) for t in points]) if points else jnp.zeros((0, 3))
     ts = TargetSet(
-        point_index=jnp.asarray([point_index(body, t.name) for t in points], int).reshape(-1),
+        point_index=tuple(point_index(body, t.name) for t in points),
         point_xyz=xyz.reshape(-1, 3),
         point_weight=jnp.asarray([t.weight for t in points]).reshape(-1),
-        axis_segment=jnp.asarray([body.segment_index(t.name) for t in axes], int).reshape(-1),
+        axis_segment=tuple(body.segment_index(t.name) for t in axes),
         axis_local=jnp.asarray(np.asarray([t.axis for t in axes]).reshape(-1, 3)),
         axis_direction=jnp.asarray(np.asarray([t.value for t in axes]).reshape(-1, 3)),
         axis_weight=jnp.asarray([t.weight for t in axes]).reshape(-1),
