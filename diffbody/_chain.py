@@ -102,22 +102,33 @@ def walk(chain: Chain, step: Callable, bases, xs, *, unroll: bool | None = None)
     levels = chain.levels
     if unroll is None:
         unroll = len(levels) <= UNROLL_LEVELS
-    # All states live in one array per leaf: the chain's m slots, the bases, and a scratch
-    # slot that the padding of a scanned walk writes to.
+    take = lambda tree, i: jax.tree.map(lambda a: a[i], tree)  # noqa: E731
+    stack = lambda trees: jax.tree.map(lambda *a: jnp.stack(a), *trees)  # noqa: E731
+    if unroll:
+        # One state per slot in a Python list: a level of one segment (most of a limb) is a
+        # plain call of `step`, with no gather or scatter in the traced graph.
+        slots = [None] * m + [take(bases, k) for k in range(chain.n_bases)]
+        for level in levels:
+            if len(level) == 1:
+                (i,) = level
+                slots[i] = step(slots[chain.parent_slot[i]], take(xs, i))
+                continue
+            parents = stack([slots[chain.parent_slot[i]] for i in level])
+            new = jax.vmap(step)(parents, take(xs, np.asarray(level, int)))
+            for j, i in enumerate(level):
+                slots[i] = take(new, j)
+        if not m:
+            return jax.tree.map(lambda b: b[:0], bases)
+        return stack(slots[:m])
+    # Scanned: all states live in one array per leaf (the chain's m slots, the bases, and a
+    # scratch slot that the padding of a level writes to).
     states = jax.tree.map(
         lambda b: jnp.concatenate([jnp.zeros((m,) + b.shape[1:], b.dtype), b, b[:1]]), bases
     )
     scratch = m + chain.n_bases
     parent_slot = np.asarray(chain.parent_slot + (scratch,), int)
-    take = lambda tree, i: jax.tree.map(lambda a: a[i], tree)  # noqa: E731
     level_step = jax.vmap(step)
-
-    if unroll:
-        for level in levels:
-            idx = np.asarray(level, int)
-            new = level_step(take(states, parent_slot[idx]), take(xs, idx))
-            states = jax.tree.map(lambda s, v, idx=idx: s.at[idx].set(v), states, new)
-    elif levels:
+    if levels:
         width = max(len(level) for level in levels)
         idx = np.full((len(levels), width), scratch)
         for k, level in enumerate(levels):

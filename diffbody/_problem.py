@@ -39,6 +39,11 @@ from ._unknowns import Layout, into_cone, path_to_top, point_segment, squash, un
 # spine's pull is stronger, so once it may move it bends only as far as the arm needs.
 PULL = 1e-6
 SPINE_PULL = 3e-5
+# The spine's free variables are its bounded variables times this factor, so that a unit of
+# the solver's step bends the spine a quarter as far: Levenberg-Marquardt's damped steps
+# are shortest in the free variables, so the arm takes most of a reach and the trunk bends
+# progressively, only as far as the arm needs (the reach ladder, README "Reach").
+SPINE_STIFFNESS = 2.0
 
 
 def _gather_or(values: Array, index: np.ndarray, mask: np.ndarray, default: Array) -> Array:
@@ -91,7 +96,7 @@ class Problem(eqx.Module):
         )
         w = into_cone(w, b.swing_max[seg]) if m else w
         tau = spread(lay.twist, squash(tw, lo_tw, hi_tw), self.tau0)
-        spine_target = squash(sp, lo_sp, hi_sp) if lay.spine else None
+        spine_target = squash(sp / SPINE_STIFFNESS, lo_sp, hi_sp) if lay.spine else None
         return w, tau, spine_target, root
 
     def links(self, x: Array) -> tuple[Links, Array]:
@@ -300,6 +305,8 @@ def make_problem(body: Body, layout: Layout, init: Pose) -> Problem:
         pull.append(np.full(3, np.sqrt(SPINE_PULL)))
     lo, hi = jnp.concatenate(lo_parts), jnp.concatenate(hi_parts)
     x0 = unsquash(jnp.concatenate(x_parts), lo, hi)
+    if layout.spine:
+        x0 = x0.at[-3:].multiply(SPINE_STIFFNESS)
     if layout.root:
         zeros = jnp.zeros(6, x0.dtype)
         lo, hi, x0 = (jnp.concatenate([a, zeros]) for a in (lo, hi, x0))

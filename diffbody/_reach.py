@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._body import Body, Pose
 from ._problem import Problem, make_problem, reach_bound, scaled_distance, start_links
@@ -59,17 +59,22 @@ _DESCRIPTIONS = {
 }
 
 
+# solve_reach returns device arrays; solve_reach_batch returns host (numpy) arrays with a
+# leading batch axis.
+_Arr = Array | np.ndarray
+
+
 class ReachResult(eqx.Module):
     """What `solve_reach` returns; per-target arrays follow the order the targets were given
     in (a `Target.frame` counts as two targets, its X then its Z axis)."""
 
     pose: Pose
-    reached: Bool[Array, " n_targets"]  # within the tolerance (1 mm / 1 degree by default)
-    residuals: Float[Array, " n_targets"]  # m for points, rad for axes; 0 where not valid
-    valid: Bool[Array, " n_targets"]  # False for a non-finite target (then never reached)
-    beyond: Bool[Array, " n_targets"]  # farther than the sum of its chain's lengths
-    status: Int[Array, ""]  # a ReachStatus
-    steps: Int[Array, ""]  # solver steps over every attempt
+    reached: Bool[_Arr, "*batch n_targets"]  # within the tolerance (1 mm / 1 degree by default)
+    residuals: Float[_Arr, "*batch n_targets"]  # m for points, rad for axes; 0 where not valid
+    valid: Bool[_Arr, "*batch n_targets"]  # False for a non-finite target (then never reached)
+    beyond: Bool[_Arr, "*batch n_targets"]  # farther than the sum of its chain's lengths
+    status: Int[_Arr, "*batch"]  # a ReachStatus
+    steps: Int[_Arr, "*batch"]  # solver steps over every attempt
 
 
 class Attempt(eqx.Module):
@@ -134,6 +139,61 @@ def implicit(problem: Problem, targets: TargetSet, x: Array) -> Array:
     return x - jnp.linalg.pinv(J) @ (r - jax.lax.stop_gradient(r))
 
 
+def solve_free(
+    body: Body,
+    layout: Layout,
+    init: Pose,
+    targets: TargetSet,
+    start: Int[Array, ""],
+    max_steps: int,
+    tol_position: Float[Array, ""],
+    tol_angle: Float[Array, ""],
+) -> tuple[Float[Array, " n_free"], Int[Array, ""]]:
+    """The free vector one phase's solve reaches from start `start` (traced: 0 is `init`),
+    and its steps. Non-finite targets take no part; a solve that leaves the finite numbers
+    falls back to its start. Never differentiated (see `assess`)."""
+    body, init, targets, tol_position, tol_angle = _no_gradient(
+        (body, init, targets, tol_position, tol_angle)
+    )
+    safe, _, _ = mask_invalid(targets)
+    problem = make_problem(body, layout, init)
+    n_trunk = (3 if layout.spine else 0) + (6 if layout.root else 0)
+    x0 = seed(problem.x0, start, n_trunk)
+    if not layout.n_free:
+        return x0, jnp.asarray(0)
+    args = (problem, safe, _close_enough(safe, tol_position, tol_angle))
+    sol = optx.least_squares(
+        _residuals, _solver(x0.dtype), x0, args, max_steps=max_steps, throw=False
+    )
+    x = jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value, x0)
+    return x, jnp.asarray(sol.stats["num_steps"])
+
+
+def assess(
+    body: Body,
+    layout: Layout,
+    init: Pose,
+    targets: TargetSet,
+    x: Float[Array, " n_free"],
+    steps: Int[Array, ""],
+    tol_position: Float[Array, ""],
+    tol_angle: Float[Array, ""],
+    differentiable: bool = False,
+) -> Attempt:
+    """The pose, errors and verdict of a solved free vector; with `differentiable`, the
+    answer carries the implicit function theorem's derivatives (`implicit`)."""
+    safe, ok_p, ok_a = mask_invalid(targets)
+    problem = make_problem(body, layout, init)
+    if differentiable and layout.n_free:
+        x = implicit(problem, safe, x)
+    err_p, err_a = problem.errors(x, safe)
+    ok = jnp.all(jnp.where(ok_p, err_p <= tol_position, True))
+    ok &= jnp.all(jnp.where(ok_a, err_a <= tol_angle, True))
+    cost = jnp.sum(safe.point_weight * err_p**2) + jnp.sum(safe.axis_weight * err_a**2)
+    cost = jnp.where(jnp.isfinite(cost), cost, jnp.inf)
+    return Attempt(problem.pose(x, init), err_p, err_a, ok, cost, steps)
+
+
 def attempt(
     body: Body,
     layout: Layout,
@@ -143,35 +203,30 @@ def attempt(
     max_steps: int,
     tol_position: Float[Array, ""],
     tol_angle: Float[Array, ""],
-    differentiable: bool = False,
 ) -> Attempt:
-    """Solve one phase's problem from start `start` (traced: 0 is `init`). Non-finite
-    targets take no part; a solve that leaves the finite numbers falls back to its start.
-    The solver's loop is never differentiated; with `differentiable`, the answer carries
-    the implicit function theorem's derivatives (`implicit`)."""
-    safe, ok_p, ok_a = mask_invalid(targets)
-    problem = make_problem(body, layout, init)
-    fixed = _no_gradient((problem, safe, tol_position, tol_angle))
-    x0 = seed(fixed[0].x0, start, 6 if layout.root else 0)
-    if layout.n_free:
-        args = (fixed[0], fixed[1], _close_enough(*fixed[1:]))
-        sol = optx.least_squares(
-            _residuals, _solver(x0.dtype), x0, args, max_steps=max_steps, throw=False
-        )
-        x = jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value, x0)
-        steps = jnp.asarray(sol.stats["num_steps"])
-        if differentiable:
-            x = implicit(problem, safe, x)
-    else:
-        x, steps = x0, jnp.asarray(0)
-    err_p, err_a = problem.errors(x, safe)
-    ok = jnp.all(jnp.where(ok_p, err_p <= tol_position, True))
-    ok &= jnp.all(jnp.where(ok_a, err_a <= tol_angle, True))
-    cost = jnp.sum(safe.point_weight * err_p**2) + jnp.sum(safe.axis_weight * err_a**2)
-    cost = jnp.where(jnp.isfinite(cost), cost, jnp.inf)
-    return Attempt(problem.pose(x, init), err_p, err_a, ok, cost, steps)
+    """One phase's solve from start `start`, assessed (no derivatives)."""
+    tols = (tol_position, tol_angle)
+    x, steps = solve_free(body, layout, init, targets, start, max_steps, *tols)
+    return assess(body, layout, init, targets, x, steps, *tols)
 
 
+def _all_starts(body, layout, init, targets, starts: int, max_steps: int, tol_p, tol_a):
+    """Every start side by side: the free vector of the first that reaches (else of the
+    closest) and the steps of all."""
+
+    def one(k):
+        x, steps = solve_free(body, layout, init, targets, k, max_steps, tol_p, tol_a)
+        return x, assess(body, layout, init, targets, x, steps, tol_p, tol_a)
+
+    xs, tries = jax.vmap(one)(jnp.arange(starts))
+    k = jnp.where(jnp.any(tries.ok), jnp.argmax(tries.ok), jnp.argmin(tries.cost))
+    return xs[k], jnp.sum(tries.steps)
+
+
+# Compiled once per problem shape and reused by every later call (under jax.grad too: their
+# inputs carry no derivatives, so the compiled solve is the same).
+_all_starts_jit = eqx.filter_jit(_all_starts)
+_assess_jit = eqx.filter_jit(assess)
 _attempt_jit = eqx.filter_jit(attempt)
 
 
@@ -214,7 +269,7 @@ def phase_layouts(
     return [limbs, full]
 
 
-def beyond_bound(body: Body, layout: Layout, init: Pose, xyz: np.ndarray) -> np.ndarray:
+def beyond_bound(body: Body, layout: Layout, init: Pose, xyz: ArrayLike) -> np.ndarray:
     """Whether point targets xyz (..., n_p, 3) lie beyond the phase's reach bound (host)."""
     links, _, _ = _start_links_jit(body, init)
     anchor, bound = reach_bound(body, layout, links)
@@ -265,20 +320,15 @@ def _solve_host(body, layouts, init, ts, starts, max_steps, tols):
 
 
 def _solve_traced(body, layouts, init, ts, starts, max_steps, tols):
-    """The same phases with every start side by side (for jax.grad / jit / vmap)."""
+    """The same phases with every start side by side (for jax.grad / jit / vmap): each
+    phase's solve runs without derivatives, and its answer is differentiated implicitly."""
     best, steps = None, jnp.asarray(0)
     start_pose = init
     for layout in layouts:
-
-        def one(k, layout=layout, start_pose=start_pose):
-            return attempt(body, layout, start_pose, ts, k, max_steps, *tols, True)
-
-        tries = jax.vmap(one)(jnp.arange(starts))
-        # The first start that reaches, else the closest.
-        first_ok = jnp.argmax(tries.ok)
-        k = jnp.where(jnp.any(tries.ok), first_ok, jnp.argmin(tries.cost))
-        a = jax.tree.map(lambda t: t[k], tries)
-        steps = steps + jnp.sum(tries.steps)
+        b0, p0, t0, tp0, ta0 = _no_gradient((body, start_pose, ts, *tols))
+        x, s = _all_starts_jit(b0, layout, p0, t0, starts, max_steps, tp0, ta0)
+        a = _assess_jit(body, layout, start_pose, ts, x, s, *tols, True)
+        steps = steps + s
         if best is not None and (a.pose.spine_target is None) != (best.pose.spine_target is None):
             # The limbs' phase leaves the spine as in init: name it as a target, so that
             # both phases' poses have one structure to select between.

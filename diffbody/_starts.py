@@ -2,10 +2,11 @@
 over the free variables' range.
 
 Start 0 is the caller's `init`, so a reachable target keeps the most natural posture. Start
-k > 0 is the k-th point of a Halton sequence over the free variables (u in [-1.3, 1.3], the
-root's placement kept at the start): low-discrepancy, so the first few starts already cover
-the range evenly instead of clustering as independent random draws do, and the same for
-every problem, so results are reproducible.
+k > 0 is the k-th point of a Halton sequence over the limbs' free variables (u in
+[-1.3, 1.3]; the trunk, the spine target and the root's placement, kept at the start, so
+that the trunk never starts bent further than the reach needs): low-discrepancy, so the
+first few starts already cover the range evenly instead of clustering as independent
+random draws do, and the same for every problem, so results are reproducible.
 """
 
 import functools
@@ -42,13 +43,13 @@ def halton(n_starts: int, dim: int) -> np.ndarray:
 MAX_STARTS = 64  # starts beyond this many repeat the table (each is tried at most once)
 
 
-def seed(x0: Float[Array, " n"], k: Int[Array, ""], n_root: int) -> Float[Array, " n"]:
+def seed(x0: Float[Array, " n"], k: Int[Array, ""], n_trunk: int) -> Float[Array, " n"]:
     """The free vector of start k (traced): x0 for k = 0, else the k-th Halton point with
-    the root's placement (the last `n_root` entries) kept at x0."""
+    the trunk (the last `n_trunk` entries: spine target, root placement) kept at x0."""
     n = x0.shape[0]
     if n == 0:
         return x0
     table = jnp.asarray(halton(MAX_STARTS, n), x0.dtype)
     point = table[jnp.mod(k, MAX_STARTS)]
-    keep = np.arange(n) >= n - n_root
+    keep = np.arange(n) >= n - n_trunk
     return jnp.where((k == 0) | keep, x0, point)

@@ -84,6 +84,7 @@ def test_implicit_gradient_of_the_reach_with_respect_to_the_target(male50, palm0
 
 
 ARM = ("left_upper_arm", "left_forearm", "left_hand")
+TIGHT = dict(tol_position=1e-10, tol_angle=1e-10)
 
 
 def _arm_angles(body, rng, n):
@@ -173,7 +174,8 @@ def test_implicit_gradient_with_respect_to_a_dimension_matches_finite_difference
     """How the solved arm changes when the forearm grows: jax.jacfwd through the solve (the
     implicit function theorem at the optimum) against central differences of two solves.
     The targets (palm position and the hand's full frame: 9 residuals, 7 unknowns) fix the
-    solution."""
+    solution. Tight tolerances: the solver stops once every target is within a hundredth of
+    its tolerance, and the differences need solves converged far below their step."""
     import equinox as eqx
 
     true = db.Pose(male50.rest_position, _arm_angles(male50, np.random.default_rng(3), 1)[0])
@@ -186,7 +188,9 @@ def test_implicit_gradient_with_respect_to_a_dimension_matches_finite_difference
 
     def solved_swing(dL):
         body = eqx.tree_at(lambda b: b.lengths, male50, male50.lengths.at[forearm].add(dL))
-        out = db.solve_reach(body, targets, init=true, segments=ARM, starts=1, max_steps=200)
+        out = db.solve_reach(
+            body, targets, init=true, segments=ARM, starts=1, max_steps=200, **TIGHT
+        )
         return db.swing_vector(body, out.pose.angles)[idx]
 
     J = jax.jacfwd(solved_swing)(0.0)
