@@ -31,7 +31,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._body import Body, Pose
-from ._problem import Problem, make_problem, reach_bound, scaled_distance, start_links
+from ._problem import Problem, make_problem, reach_bound, start_links
 from ._projection import needs_projection, project, twists_to_keep
 from ._spine import spine_angles
 from ._starts import seed
@@ -235,9 +235,6 @@ def finish(body: Body, pose: Pose, keep: tuple[int, ...] | None) -> Pose:
     return pose if keep is None else project(body, pose, keep)
 
 
-_finish_jit = eqx.filter_jit(finish)
-
-
 # --- phases ------------------------------------------------------------------------------
 def trunk_segments(body: Body) -> set[int]:
     """The whole body, the spine's segments and everything above them (the pelvis)."""
@@ -257,7 +254,29 @@ def phase_layouts(
     segments: Sequence[str] | None,
 ) -> list[Layout]:
     """The layouts of the phases: the limbs alone, then everything (one layout when the two
-    coincide or the limbs have no unknown on a target's chain)."""
+    coincide or the limbs have no unknown on a target's chain). Cached per body structure
+    and limits (host work of milliseconds, on every call otherwise)."""
+    ranges = (body.swing_lo, body.swing_hi, body.twist_lo, body.twist_hi)
+    if _is_traced(ranges):
+        return _phase_layouts(body, ts, spine, free_root, segments)
+    key = (
+        jax.tree.structure(body),
+        tuple(np.asarray(a).tobytes() for a in ranges),
+        ts.point_index,
+        ts.axis_segment,
+        spine,
+        free_root,
+        None if segments is None else tuple(segments),
+    )
+    if key not in _LAYOUTS:
+        _LAYOUTS[key] = _phase_layouts(body, ts, spine, free_root, segments)
+    return _LAYOUTS[key]
+
+
+_LAYOUTS: dict = {}
+
+
+def _phase_layouts(body, ts, spine, free_root, segments) -> list[Layout]:
     points, axes = ts.point_index, ts.axis_segment
     movable = set(range(body.n_segments))
     if segments is not None:
@@ -271,11 +290,15 @@ def phase_layouts(
 
 def beyond_bound(body: Body, layout: Layout, init: Pose, xyz: ArrayLike) -> np.ndarray:
     """Whether point targets xyz (..., n_p, 3) lie beyond the phase's reach bound (host)."""
-    links, _, _ = _start_links_jit(body, init)
+    links = jax.tree.map(np.asarray, _start_links_jit(body, init)[0])
     anchor, bound = reach_bound(body, layout, links)
     xyz = np.asarray(xyz, float)
-    dist = np.asarray(scaled_distance(jnp.asarray(xyz), jnp.asarray(anchor)))
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", over="ignore"):
+        # |xyz - anchor| scaled by its largest component, so 1e30 m does not overflow.
+        d = xyz - anchor
+        scale = np.max(np.abs(d), axis=-1)
+        scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
+        dist = scale * np.linalg.norm(d / scale[..., None], axis=-1)
         return np.isfinite(xyz).all(-1) & (dist > bound)
 
 
@@ -398,7 +421,7 @@ def solve_reach(
         if not np.all(np.isfinite(t.value)):
             raise ValueError(f"solve_reach: target {t.name!r} has a non-finite value {t.value}")
     ts, order = resolve_targets(body, flat)
-    init = body.rest_pose() if init is None else init
+    init = _rest_pose_jit(body) if init is None else init
     layouts = phase_layouts(body, ts, spine=spine, free_root=free_root, segments=segments)
     dtype = jnp.result_type(float)
     tols = (jnp.asarray(tol_position, dtype), jnp.asarray(tol_angle, dtype))
@@ -410,8 +433,10 @@ def solve_reach(
         if (standard_orientation and needs_projection(body, final))
         else None
     )
-    pose = _finish_jit(body, best.pose, keep)
-    return _result(pose, best, ts, order, beyond, steps, tols)
+    return _conclude_jit(body, keep, best, ts, tuple(order), beyond, steps, tols)
+
+
+_rest_pose_jit = eqx.filter_jit(lambda body: body.rest_pose())
 
 
 def _result(pose, best: Attempt, ts: TargetSet, order, beyond, steps, tols) -> ReachResult:
@@ -434,6 +459,14 @@ def _result(pose, best: Attempt, ts: TargetSet, order, beyond, steps, tols) -> R
         status=status,
         steps=jnp.asarray(steps),
     )
+
+
+def _conclude(body, keep, best: Attempt, ts, order, beyond, steps, tols) -> ReachResult:
+    """The post-projection (when `keep` is not None) and the result, in one compiled call."""
+    return _result(finish(body, best.pose, keep), best, ts, order, beyond, steps, tols)
+
+
+_conclude_jit = eqx.filter_jit(_conclude)
 
 
 def _status(reached: Array, valid: Array, beyond: Array) -> Array:
