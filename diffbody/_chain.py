@@ -10,6 +10,7 @@ the solvers' residuals, the post-projection, local frames, the posture from join
 exports all call it with their own per-segment step.
 """
 
+import functools
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
@@ -145,3 +146,21 @@ def walk(chain: Chain, step: Callable, bases, xs, *, unroll: bool | None = None)
 
         states, _ = jax.lax.scan(scan_step, states, (jnp.asarray(idx), jnp.asarray(par)))
     return jax.tree.map(lambda s: s[:m], states)
+
+
+@functools.cache
+def _below_top(parent: tuple[int, ...]) -> Chain:
+    return make_chain(parent, range(1, len(parent)), [0])
+
+
+def walk_below_top(parent: Sequence[int], step: Callable, top, xs):
+    """`walk` over every segment below segment 0 (the whole body), in global order: `top`
+    is segment 0's state, `xs` the per-segment inputs with a leading axis of all n
+    segments (row 0 unused). Returns every segment's state (n, ...), row 0 `top`."""
+    chain = _below_top(tuple(int(p) for p in parent))
+    seg = np.asarray(chain.segments, int)
+    out = walk(
+        chain, step, jax.tree.map(lambda a: a[None], top), jax.tree.map(lambda a: a[seg], xs)
+    )
+    back = np.argsort(seg)
+    return jax.tree.map(lambda t, o: jnp.concatenate([t[None], o[back]]), top, out)

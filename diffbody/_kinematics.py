@@ -13,7 +13,12 @@ from jaxtyping import Array, Float
 
 from ._body import PHI, TAU, THETA, Body, Pose
 from ._chain import Chain, make_chain, walk
-from ._orientation import azimuth_polar_to_vector, standard_frame, vector_to_azimuth_polar
+from ._orientation import (
+    LIMBS,
+    azimuth_polar_to_vector,
+    standard_frame,
+    vector_to_azimuth_polar,
+)
 from ._rotations import (
     exp_rotvec,
     matmul3,
@@ -22,6 +27,7 @@ from ._rotations import (
     swing_rotation,
     twist_about_z,
 )
+from ._spine import bendspine
 
 
 class Kinematics(eqx.Module):
@@ -61,6 +67,21 @@ def socket_frames(
     return R
 
 
+KINDS: tuple[str, ...] = ("swing",) + LIMBS  # socket-frame kinds, coded by position
+
+
+def socket_frame_of_kind(
+    theta: Float[Array, ""], phi: Float[Array, ""], R_rest: Float[Array, "3 3"], kind: Array
+) -> Float[Array, "3 3"]:
+    """One segment's base frame in its socket (`socket_frames`) with its kind as a traced
+    code into `KINDS`, for steps of a walk that runs one code for every segment: every kind
+    is built and the segment's own is kept."""
+    d = azimuth_polar_to_vector(theta, phi)
+    frames = [matmul3(swing_rotation(R_rest[:, 2], d), R_rest)]
+    frames += [standard_frame(theta, phi, limb) for limb in LIMBS]
+    return jnp.stack(frames)[kind]
+
+
 def twist_fraction(z: Float[Array, "*b"], length: Float[Array, "*b"]) -> Float[Array, "*b"]:
     """Share of the segment's twist a point at height z turns by: z / length (seed 000,
     Fig. 7 as corrected), clipped to [0, 1] so points beyond either end turn like that end."""
@@ -71,8 +92,6 @@ def twist_fraction(z: Float[Array, "*b"], length: Float[Array, "*b"]) -> Float[A
 def spine_deviation(body: Body, spine_target: Array) -> tuple[np.ndarray, Array, Array]:
     """Bendspine of a spine target from rest, as the swing vectors and twists of the
     segments the spine moves (their deviation from the standard position)."""
-    from ._spine import bendspine
-
     if body.spine is None:
         raise ValueError(
             f"forward: the pose has a spine_target but body {body.name!r} has no spine database "

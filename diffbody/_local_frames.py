@@ -16,6 +16,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._body import Body
+from ._chain import walk_below_top
 from ._orientation import vector_to_inclination_azimuth
 from ._posture import whole_body_rotation
 from ._rotations import safe_normalize, swing_rotation
@@ -94,16 +95,16 @@ def local_frames(
     position.
     """
     p = jnp.asarray(joint_positions)
-    bones_rest, refs_rest = (jnp.asarray(a) for a in _rest_references(body))
-    frames = jnp.zeros((body.n_segments, 3, 3), p.dtype).at[0].set(whole_body_rotation(body, p))
-    prox, dist, par = (np.asarray(a) for a in (body.proximal_joint, body.distal_joint, body.parent))
-    for level in body.levels[1:]:
-        idx = np.asarray(level)
-        P = frames[par[idx]]
-        bone = jnp.einsum("kji,kj->ki", P, p[dist[idx]] - p[prox[idx]])
-        ref = smooth_reference(bone, bones_rest[idx], refs_rest[idx])
-        frames = frames.at[idx].set(P @ local_frame(bone, ref))
-    return frames
+    bones_rest, refs_rest = (jnp.asarray(a, p.dtype) for a in _rest_references(body))
+    prox, dist = np.asarray(body.proximal_joint), np.asarray(body.distal_joint)
+
+    def step(P, x):
+        bone_world, bone_rest, ref_rest = x
+        bone = P.T @ bone_world  # in the parent's local system
+        return P @ local_frame(bone, smooth_reference(bone, bone_rest, ref_rest))
+
+    xs = (p[dist] - p[prox], bones_rest, refs_rest)
+    return walk_below_top(body.parent, step, whole_body_rotation(body, p), xs)
 
 
 def bone_descriptors(

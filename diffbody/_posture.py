@@ -13,7 +13,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._body import Body, Pose
-from ._kinematics import forward, socket_frames
+from ._chain import walk_below_top
+from ._kinematics import KINDS, forward, socket_frame_of_kind
 from ._orientation import vector_to_azimuth_polar
 from ._rotations import rot_z, safe_atan2, safe_normalize, swing_rotation
 
@@ -84,20 +85,22 @@ def _pose_from_joints(
     n = body.n_segments
     tau = jnp.zeros(n, p.dtype) if deviation is None else jnp.asarray(deviation, p.dtype)
     default = body.default_root_joint
-    # The whole body's twist is its stance, fixed by the positions: no deviation applies.
-    angles = jnp.zeros((n, 3), p.dtype).at[0].set(angles_of_rotation(W))
-    R_twisted = jnp.zeros((n, 3, 3), p.dtype).at[0].set(W)
-    prox, dist, par = (np.asarray(a) for a in (body.proximal_joint, body.distal_joint, body.parent))
-    for level in body.levels[1:]:
-        idx = np.asarray(level)
-        socket = R_twisted[par[idx]] @ body.R_parent_socket[idx]
-        d_world = safe_normalize(p[dist[idx]] - p[prox[idx]], socket[:, :, 2])
-        d_socket = jnp.einsum("kji,kj->ki", socket, d_world)
+    prox, dist = np.asarray(body.proximal_joint), np.asarray(body.distal_joint)
+    kinds = np.asarray([KINDS.index(k) for k in body.standard_kind])
+
+    def step(parent, x):
+        R_twisted_parent, _ = parent
+        bone, tau_i, R_parent_socket, R_rest, kind = x
+        socket = R_twisted_parent @ R_parent_socket
+        d_socket = socket.T @ safe_normalize(bone, socket[:, 2])
         theta, phi, _ = vector_to_azimuth_polar(d_socket)
-        level_angles = jnp.stack([theta, phi, tau[idx]], axis=-1)
-        angles = angles.at[idx].set(level_angles)
-        R_base = socket @ socket_frames(body, level_angles, idx)
-        R_twisted = R_twisted.at[idx].set(R_base @ rot_z(tau[idx]))
+        R_base = socket @ socket_frame_of_kind(theta, phi, R_rest, kind)
+        return R_base @ rot_z(tau_i), jnp.stack([theta, phi, tau_i])
+
+    # The whole body's twist is its stance, fixed by the positions: no deviation applies.
+    top = (W, angles_of_rotation(W))
+    xs = (p[dist] - p[prox], tau, body.R_parent_socket, body.R_socket_rest, jnp.asarray(kinds))
+    R_twisted, angles = walk_below_top(body.parent, step, top, xs)
     position = p[default]
     if body.root_joint != default:
         # Re-rooted body: the whole body's orientation is the pinned frame's, relative to

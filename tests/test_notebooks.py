@@ -9,8 +9,9 @@ from nbclient import NotebookClient
 NOTEBOOKS = sorted((Path(__file__).resolve().parent.parent / "notebooks").glob("*.ipynb"))
 
 
-# batch_ik's reach envelope solves a 47^3 grid (its saved outputs); the suite runs 12^3.
-QUICK = {"DIFFBODY_NOTEBOOK_GRID": "12"}
+# batch_ik's reach envelope solves a 47^3 grid and its gradient study 16 targets (its saved
+# outputs); the suite runs 12^3 and 5.
+QUICK = {"DIFFBODY_NOTEBOOK_GRID": "12", "DIFFBODY_NOTEBOOK_GRADIENTS": "5"}
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
