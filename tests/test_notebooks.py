@@ -10,8 +10,8 @@ NOTEBOOKS = sorted((Path(__file__).resolve().parent.parent / "notebooks").glob("
 
 
 # batch_ik's reach envelope solves a 47^3 grid and its gradient study 16 targets (its saved
-# outputs); the suite runs 12^3 and 5.
-QUICK = {"DIFFBODY_NOTEBOOK_GRID": "12", "DIFFBODY_NOTEBOOK_GRADIENTS": "5"}
+# outputs); the suite runs 8^3 and 3.
+QUICK = {"DIFFBODY_NOTEBOOK_GRID": "8", "DIFFBODY_NOTEBOOK_GRADIENTS": "3"}
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
