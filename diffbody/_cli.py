@@ -6,19 +6,23 @@ import sys
 
 def keep_compiled() -> None:
     """Turn on JAX's persistent compilation cache for the command line, so that a repeated
-    `reach` or `batch` reuses the solver an earlier run compiled (the README's reach: 33 s
-    down to 12 s on 2 cores; tracing is what remains). The folder is
-    $JAX_COMPILATION_CACHE_DIR when set, else $XDG_CACHE_HOME/diffbody/jax
-    (~/.cache/diffbody/jax); DIFFBODY_NO_CACHE=1 leaves the cache off."""
+    `reach` or `batch` reuses what an earlier run compiled (README, "Benchmarks"). The
+    folder is $JAX_COMPILATION_CACHE_DIR when set, else $XDG_CACHE_HOME/diffbody/jax
+    (~/.cache/diffbody/jax); DIFFBODY_NO_CACHE=1 leaves the cache off. Every compiled
+    function is kept, however quick to compile (JAX keeps only those over 1 s by default):
+    reading one back costs a few milliseconds, compiling it tens."""
     import os
     from pathlib import Path
 
     import jax
 
-    if os.environ.get("DIFFBODY_NO_CACHE") == "1" or jax.config.jax_compilation_cache_dir:
+    if os.environ.get("DIFFBODY_NO_CACHE") == "1":
         return
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    jax.config.update("jax_compilation_cache_dir", str(base / "diffbody" / "jax"))
+    if not jax.config.jax_compilation_cache_dir:
+        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+        jax.config.update("jax_compilation_cache_dir", str(base / "diffbody" / "jax"))
+    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
 def _body(args):

@@ -4,9 +4,13 @@ displays, with matplotlib (orthographic views)."""
 from collections.abc import Sequence
 from pathlib import Path
 
+import equinox as eqx
 import numpy as np
 
 from ._body import Body, Pose
+from ._kinematics import forward
+
+_forward_jit = eqx.filter_jit(forward)  # one compiled call (eagerly: hundreds of small ones)
 
 VIEWS = {  # (azimuth, elevation) of the camera, degrees; azimuth from +X toward +Y
     "front": (0.0, 0.0),
@@ -73,9 +77,7 @@ def draw(
     from matplotlib.collections import PatchCollection
     from matplotlib.patches import Circle
 
-    from ._kinematics import forward
-
-    fk = forward(body, pose)
+    fk = _forward_jit(body, pose)
     centers = np.asarray(fk.sphere_centers, dtype=float)
     radii = np.asarray(fk.sphere_radii, dtype=float)
     to_camera, right, up, label = _camera(view)
