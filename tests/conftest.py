@@ -1,8 +1,14 @@
 """Strict test configuration: float64 everywhere, shared bodies and compiled functions."""
 
 import os
+import tempfile
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+# One persistent compilation cache for the whole run, shared by the pytest-xdist workers,
+# the notebooks' kernels and the command-line subprocesses (they inherit this environment
+# from the process that starts them): what one of them compiled, the others read back.
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", tempfile.mkdtemp(prefix="diffbody-jax-"))
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 
 import jax  # noqa: E402
 
@@ -37,3 +43,10 @@ def female50() -> db.Body:
 def fk_male50(male50):
     """forward for the male50 body, compiled once for the whole session."""
     return jax.jit(lambda pose: db.forward(male50, pose))
+
+
+def pytest_collection_modifyitems(items):
+    """The longest tests first (the notebooks, the README), so that the two workers finish
+    together instead of one waiting on a long test collected last."""
+    first = ("test_notebooks.py", "test_readme.py")
+    items.sort(key=lambda item: item.nodeid.split("::")[0].split("/")[-1] not in first)
