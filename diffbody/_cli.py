@@ -1,6 +1,8 @@
 """The `diffbody` command line."""
 
 import argparse
+import math
+import os
 import sys
 
 
@@ -11,7 +13,6 @@ def keep_compiled() -> None:
     (~/.cache/diffbody/jax); DIFFBODY_NO_CACHE=1 leaves the cache off. Every compiled
     function is kept, however quick to compile (JAX keeps only those over 1 s by default):
     reading one back costs a few milliseconds, compiling it tens."""
-    import os
     from pathlib import Path
 
     import jax
@@ -25,10 +26,89 @@ def keep_compiled() -> None:
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
+def _positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer (1, 2, ...), got {text!r}")
+    return value
+
+
+def _finite_float(text: str) -> float:
+    """argparse type: a finite number (nan and inf parse as floats but are no position)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number in metres, got {text!r}")
+    return value
+
+
+def _view(text: str):
+    """argparse type: a named view or "AZ,EL" (camera azimuth and elevation, degrees)."""
+    from ._render import VIEWS
+
+    if text in VIEWS:
+        return text
+    parts = text.split(",")
+    try:
+        az, el = (float(x) for x in parts)
+    except ValueError:
+        az = el = math.nan
+    if not (math.isfinite(az) and math.isfinite(el)):
+        raise argparse.ArgumentTypeError(
+            f"unknown view {text!r}; use one of {', '.join(VIEWS)} "
+            "or AZ,EL (camera azimuth and elevation in degrees, e.g. 30,15)"
+        )
+    return (az, el)
+
+
+def _check_output(option: str, path: str | None) -> None:
+    """Refuse an output file that cannot be written, before any loading or solving, so a
+    typo in a folder name does not cost a whole solve."""
+    if path is None:
+        return
+    if not path:
+        raise ValueError(f"{option}: empty file name")
+    folder = os.path.dirname(os.path.abspath(path))
+    if os.path.isdir(path):
+        raise ValueError(f"{option} {path}: is a folder; give a file name")
+    if not os.path.exists(folder):
+        raise ValueError(f"{option} {path}: folder {folder} does not exist")
+    if not os.path.isdir(folder):
+        raise ValueError(f"{option} {path}: {folder} is not a folder")
+    if not os.access(folder, os.W_OK):
+        raise ValueError(f"{option} {path}: cannot write in folder {folder}")
+
+
 def _body(args):
     from ._loading import load_body
 
-    return load_body(args.body, variant=args.variant)
+    try:
+        return load_body(args.body, variant=args.variant)
+    except UnicodeDecodeError as e:
+        # Named here as well as in the loader: the decoder's own message names no file.
+        raise ValueError(f"{args.body}: not UTF-8 text (byte {e.object[e.start]:#04x})") from None
+
+
+def _check_names(body, effectors: list[str], segments: list[str] | None) -> None:
+    """Unknown effector or segment names, reported with the option before any solve."""
+    from ._targets import Target, resolve_targets
+
+    hint = " (diffbody info --names lists them)"
+    try:
+        resolve_targets(body, [Target.position(e, [0.0, 0.0, 0.0]) for e in effectors])
+    except KeyError as e:
+        raise KeyError(f"--effector: {e.args[0]}{hint}") from None
+    for name in segments or []:
+        try:
+            body.segment_index(name)
+        except KeyError as e:
+            raise KeyError(f"--segments: {e.args[0]}{hint}") from None
 
 
 def _summary(body) -> str:
@@ -50,14 +130,14 @@ def _summary(body) -> str:
 def _render(args) -> int:
     from ._render import render
 
+    _check_output("--out", args.out)
     body = _body(args)
     print(_summary(body))
-    views = [v if "," not in v else tuple(float(x) for x in v.split(",")) for v in args.view]
     path = render(
         body,
         body.rest_pose(),
         args.out,
-        views,
+        args.view,
         features=args.features,
         skeleton=args.skeleton,
         title=f"diffbody {body.name}: standard position",
@@ -102,7 +182,10 @@ def _reach(args) -> int:
     from ._reach import ReachStatus, solve_reach
     from ._targets import Target
 
+    _check_output("--out", args.out)
+    _check_output("--png", args.png)
     body = _body(args)
+    _check_names(body, [args.effector], args.segments)
     target = np.asarray(args.target, float)
     out = solve_reach(
         body,
@@ -157,11 +240,33 @@ def _reach(args) -> int:
 
 
 def _read_targets(path: str, k: int):
-    """Rows of x,y,z per effector (header optional) -> (n, k, 3); errors name file, row
-    and column."""
+    """Rows of x,y,z per effector (header optional) -> (n, k, 3); errors name the file, and
+    the row and column where there is one."""
     import csv
+    import io
+    from pathlib import Path
 
     import numpy as np
+
+    example = ",".join(["0.35,0.30,1.10"] * k)
+    shape = (
+        f"each row is x,y,z in metres for each effector ({3 * k} columns), "
+        f"comma-separated, e.g. {example}"
+    )
+    if Path(path).is_dir():
+        raise ValueError(f"{path}: is a directory; expected a CSV file of targets")
+    data = Path(path).read_bytes()
+    try:
+        text = data.decode("utf-8-sig")  # a spreadsheet's byte-order mark is no data
+    except UnicodeDecodeError as e:
+        line = data[: e.start].count(b"\n") + 1
+        raise ValueError(
+            f"{path}: row {line}: not UTF-8 text (byte {data[e.start]:#04x}); "
+            "save the targets as a plain UTF-8 CSV"
+        ) from None
+    if not text.strip():
+        what = "the file is empty" if not data else "only blank lines"
+        raise ValueError(f"{path}: no target rows, {what}; {shape}")
 
     def number(cell):
         try:
@@ -169,25 +274,41 @@ def _read_targets(path: str, k: int):
         except ValueError:
             return None
 
-    rows = []
-    with open(path, newline="") as f:
-        for line, row in enumerate(csv.reader(f), start=1):
-            row = [c.strip() for c in row]
-            if not row or all(c == "" for c in row):
-                continue
-            values = [number(c) for c in row]
-            if not rows and line == 1 and all(v is None for v in values):
-                continue  # a header
-            if len(row) != 3 * k:
-                col = min(len(row), 3 * k) + 1
+    rows, header = [], False
+    reader = csv.reader(io.StringIO(text, newline=""))
+    for row in reader:
+        line = reader.line_num
+        row = [c.strip() for c in row]
+        if not row or all(c == "" for c in row):
+            continue
+        for sep, name in ((";", "semicolons"), ("\t", "tabs")):
+            if any(sep in c for c in row):
                 raise ValueError(
-                    f"{path}: row {line}, column {col}: expected {3 * k} columns "
-                    f"(x,y,z for each of {k} effector(s)), got {len(row)}"
+                    f"{path}: row {line}: columns are separated by commas, not {name}; {shape}"
                 )
-            for col, (cell, v) in enumerate(zip(row, values), start=1):
-                if v is None:
-                    raise ValueError(f"{path}: row {line}, column {col}: not a number: {cell!r}")
-            rows.append(values)
+        if any(len(c.split()) > 1 and all(number(x) is not None for x in c.split()) for c in row):
+            raise ValueError(
+                f"{path}: row {line}: columns are separated by commas, not spaces; {shape}"
+            )
+        values = [number(c) for c in row]
+        if not rows and not header and all(v is None for v in values):
+            header = True  # the first row, all names
+            continue
+        if len(row) != 3 * k:
+            col = min(len(row), 3 * k) + 1
+            raise ValueError(
+                f"{path}: row {line}, column {col}: expected {3 * k} columns "
+                f"(x,y,z for each of {k} effector(s)), got {len(row)}"
+            )
+        for col, (cell, v) in enumerate(zip(row, values), start=1):
+            if cell == "":
+                raise ValueError(f"{path}: row {line}, column {col}: empty cell")
+            if v is None:
+                raise ValueError(f"{path}: row {line}, column {col}: not a number: {cell!r}")
+        rows.append(values)
+    if not rows:
+        what = "a header but no target rows" if header else "no target rows"
+        raise ValueError(f"{path}: {what}; {shape}")
     return np.asarray(rows, float).reshape(-1, k, 3)
 
 
@@ -196,11 +317,14 @@ def _batch(args) -> int:
 
     from ._batch import solve_reach_batch
     from ._reach import ReachStatus
-    from ._targets import Target, resolve_targets
 
-    body = _body(args)
-    resolve_targets(body, [Target.position(e, [0, 0, 0]) for e in args.effector])
+    _check_output("--out", args.out)
+    # The file before the body: a malformed CSV is told in milliseconds.
     xyz = _read_targets(args.targets, len(args.effector))
+    if os.path.exists(args.out) and os.path.samefile(args.out, args.targets):
+        raise ValueError(f"--out {args.out}: is the targets file; give another file name")
+    body = _body(args)
+    _check_names(body, args.effector, args.segments)
     out = solve_reach_batch(
         body,
         args.effector,
@@ -247,6 +371,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--view",
         nargs="+",
+        type=_view,
         default=["front", "left", "perspective"],
         help="views: front, back, left, right, top, perspective, or AZ,EL degrees",
     )
@@ -264,12 +389,14 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument(
             "--segments", nargs="+", default=None, help="only these segments move (names)"
         )
-        p.add_argument("--starts", type=int, default=8, help="most solver starts (default 8)")
+        p.add_argument(
+            "--starts", type=_positive_int, default=8, help="most solver starts (default 8)"
+        )
 
     p = sub.add_parser("reach", help="reach one target with an effector (inverse kinematics)")
     body_args(p)
     p.add_argument("--effector", required=True, help="joint, feature or center_of_gravity")
-    p.add_argument("--target", nargs=3, type=float, required=True, metavar=("X", "Y", "Z"))
+    p.add_argument("--target", nargs=3, type=_finite_float, required=True, metavar=("X", "Y", "Z"))
     p.add_argument("--out", default=None, help="JSON to write (angles in degrees)")
     p.add_argument("--png", default=None, help="PNG of the pose to write")
     solver_args(p)
@@ -280,7 +407,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("targets", help="CSV: x,y,z per effector in order, header optional")
     p.add_argument("--effector", action="append", required=True, help="repeat for several")
     p.add_argument("--out", default="results.csv", help="CSV to write (default results.csv)")
-    p.add_argument("--chunk-size", type=int, default=4096, help="rows per compiled call")
+    p.add_argument("--chunk-size", type=_positive_int, default=4096, help="rows per compiled call")
     solver_args(p)
     p.set_defaults(run=_batch)
 
@@ -289,9 +416,14 @@ def main(argv: list[str] | None = None) -> int:
         keep_compiled()
     try:
         return args.run(args)
-    except (ValueError, KeyError, FileNotFoundError) as e:
-        print(f"diffbody: error: {e}", file=sys.stderr)
-        return 2
+    except KeyError as e:  # its str() would quote the message
+        message = e.args[0] if e.args else repr(e)
+    except OSError as e:  # FileNotFoundError, IsADirectoryError, PermissionError, ...
+        message = f"{e.filename}: {e.strerror}" if e.filename and e.strerror else str(e)
+    except ValueError as e:  # BodyFileError, a malformed CSV, UnicodeDecodeError, ...
+        message = str(e)
+    print(f"diffbody: error: {message}", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":

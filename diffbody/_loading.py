@@ -1,9 +1,10 @@
-"""Loading and validating body files (schema in data/SCHEMA.md) and spine databases
-(data/README.md).
+"""Loading and validating body files and spine databases (both schemas, with the physical
+ranges, in data/SCHEMA.md).
 
 Every error is a `BodyFileError` naming the file, the entry, the field and what is
-expected, e.g. ``data/body.json: segment 'left_forearm' (segments[12]), field 'length':
-must be > 0, got -0.2``.
+expected, e.g. ``body.json: segment 'left_forearm' (segments[12]), field 'length': must lie
+in [0.0001, 10] m, got -0.2``. A file that cannot be read (missing aside) or is not UTF-8
+JSON is a `BodyFileError` naming the file too.
 """
 
 import dataclasses
@@ -35,6 +36,41 @@ OPTIONAL_LIMIT_FIELDS = {"box": {"swing_max_deg"}}
 DEFAULT_SWING_MAX_DEG = 179.0
 SPINE_SCHEMA = "diffbody.spine/1"
 SPINE_ROTATIONS = ("flexion", "axial", "lateral")  # columns of the spine's angle arrays
+SPINE_TOP_FIELDS = {"schema", "joints", "vertebrae"}
+SPINE_OPTIONAL_FIELDS = {"sources", "angles", "description", "initiator"}
+SPINE_JOINT_FIELDS = {
+    "name",
+    "segment",
+    "rest_deg",
+    "limits_deg",
+    "disc_height_mm",
+    "flexion_axis_offset_mm",
+}
+DEFAULT_SPINE_INITIATOR = "T12_L1"  # the thoracolumbar junction (seed 004's examples)
+
+# Physical ranges (SCHEMA.md): a value outside is a typo or a unit slip (mm for m), and
+# float32 kinematics stays finite and well-scaled inside them.
+LENGTH_M = (1e-4, 10.0)  # segment lengths and sphere radii
+MASS_KG = (0.0, 1000.0)  # massless segments stay legal
+POSITION_M = 10.0  # |coordinate| of centroids and sphere origins in the cross of axes
+SPINE_ANGLE_DEG = 90.0  # |rest and limit angles| of one intervertebral joint
+DISC_HEIGHT_MM = (0.0, 50.0)
+AXIS_OFFSET_MM = 100.0  # |flexion-axis offset| from the disc centre
+VERTEBRA_SIZE_MM = (1.0, 200.0)
+MIN_SWING_MAX_DEG = 1e-3
+
+
+class _Object(dict):
+    """A JSON object that remembers the keys it was given twice (json keeps the last)."""
+
+    duplicates: tuple[str, ...] = ()
+
+
+def _object(pairs: list[tuple[str, Any]]) -> _Object:
+    obj = _Object(pairs)
+    keys = [k for k, _ in pairs]
+    obj.duplicates = tuple(sorted({k for k in keys if keys.count(k) > 1}))
+    return obj
 
 
 class BodyFileError(ValueError):
@@ -52,13 +88,20 @@ class _Where:
         return BodyFileError(f"{self.path}: {self.entry}{at}: {message}")
 
     def fields(self, obj: Any, required: set[str], optional: set[str] = frozenset()) -> None:
+        """obj is an object with every required field, no unknown one, none given twice; the
+        free-text fields `source` and `description`, where allowed and given, are text."""
         if not isinstance(obj, dict):
             raise self.fail(None, f"must be a JSON object, got {type(obj).__name__}")
+        for f in getattr(obj, "duplicates", ()):
+            raise self.fail(f, "given twice; keep one")
         for f in sorted(required - obj.keys()):
             raise self.fail(f, "missing (required)")
         for f in sorted(obj.keys() - required - optional):
             allowed = ", ".join(sorted(required | optional))
             raise self.fail(f, f"unknown field; allowed fields are: {allowed}")
+        for f in ("source", "description"):
+            if f in obj:
+                self.string(obj, f)
 
     def string(self, obj: dict, field: str) -> str:
         v = obj[field]
@@ -66,52 +109,70 @@ class _Where:
             raise self.fail(field, f"must be a non-empty string, got {v!r}")
         return v
 
-    def number(self, obj: dict, field: str, *, positive=False, nonneg=False) -> float:
-        v = obj[field]
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.fail(field, f"must be a number, got {type(v).__name__} {v!r}")
-        if not math.isfinite(v):
-            raise self.fail(field, f"must be a finite number, got {v}")
+    def number(
+        self,
+        obj: dict,
+        field: str,
+        *,
+        positive=False,
+        within: tuple[float, float] | None = None,
+        unit: str = "",
+    ) -> float:
+        """A finite number; > 0 when `positive`; in [lo, hi] `unit` when `within` is given."""
+        v = _finite(self, field, obj[field])
         if positive and v <= 0:
             raise self.fail(field, f"must be > 0, got {v}")
-        if nonneg and v < 0:
-            raise self.fail(field, f"must be >= 0, got {v}")
-        return float(v)
+        if within is not None:
+            _bounded(self, field, v, within, unit)
+        return v
 
-    def vector(self, obj: dict, field: str, *, unit=False) -> np.ndarray:
+    def numbers(self, obj: dict, field: str, n: int, what: str) -> list[float]:
+        """A list of n finite numbers (`what` names them, e.g. "[x, y, z]")."""
         v = obj[field]
-        if (
-            not isinstance(v, list)
-            or len(v) != 3
-            or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v)
-        ):
-            raise self.fail(field, f"must be a list of 3 numbers [x, y, z], got {v!r}")
-        a = np.asarray(v, dtype=float)
-        if not np.all(np.isfinite(a)):
-            raise self.fail(field, f"must be finite, got {v}")
+        if not isinstance(v, list) or len(v) != n:
+            raise self.fail(field, f"must be a list of {n} numbers {what}, got {v!r}")
+        return [_finite(self, field, x) for x in v]
+
+    def vector(
+        self, obj: dict, field: str, *, unit=False, bound: float | None = None
+    ) -> np.ndarray:
+        """[x, y, z]: finite, each |coordinate| <= bound; `unit` normalises a direction."""
+        a = np.asarray(self.numbers(obj, field, 3, "[x, y, z]"))
+        if bound is not None and np.max(np.abs(a)) > bound:
+            raise self.fail(
+                field, f"every coordinate must lie in [-{bound:g}, {bound:g}] m, got {a.tolist()}"
+            )
         if unit:
-            n = np.linalg.norm(a)
-            if n < 1e-9:
-                raise self.fail(field, f"must be a non-zero direction, got {v}")
-            a = a / n
+            scaled = a / max(np.max(np.abs(a)), 1e-300)  # |a| of 1e300 must not overflow
+            if np.max(np.abs(a)) < 1e-9:
+                raise self.fail(field, f"must be a non-zero direction, got {a.tolist()}")
+            a = scaled / np.linalg.norm(scaled)
         return a
 
-    def range_deg(self, obj: dict, field: str) -> tuple[float, float]:
-        v = obj[field]
-        if (
-            not isinstance(v, list)
-            or len(v) != 2
-            or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v)
-        ):
-            raise self.fail(field, f"must be [lo, hi] in degrees, got {v!r}")
-        lo, hi = float(v[0]), float(v[1])
-        if not (math.isfinite(lo) and math.isfinite(hi)):
-            raise self.fail(field, f"must be finite, got {v}")
+    def range_deg(self, obj: dict, field: str, bound: float = 180.0) -> tuple[float, float]:
+        """[lo, hi] in degrees within [-bound, bound], returned in radians."""
+        lo, hi = self.numbers(obj, field, 2, "[lo, hi] in degrees")
         if lo > hi:
             raise self.fail(field, f"inverted limits: lo {lo} > hi {hi}; expected lo <= hi")
-        if lo < -180 or hi > 180:
-            raise self.fail(field, f"must lie within [-180, 180] degrees, got {v}")
+        if lo < -bound or hi > bound:
+            raise self.fail(
+                field, f"must lie within [-{bound:g}, {bound:g}] degrees, got {[lo, hi]}"
+            )
         return math.radians(lo), math.radians(hi)
+
+
+def _finite(where: _Where, field: str, v: Any) -> float:
+    """A JSON number as a finite float (not a bool, not a string, not 1e400 or NaN)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise where.fail(field, f"must be a number, got {type(v).__name__} {v!r}")
+    try:
+        x = float(v)  # an integer too large for a float raises OverflowError
+    except OverflowError:
+        x = math.inf
+    if not math.isfinite(x):
+        shown = v if isinstance(v, float) else f"an integer of {len(str(v))} digits"
+        raise where.fail(field, f"must be a finite number, got {shown}")
+    return x
 
 
 def _limits(where: _Where, seg: dict) -> tuple[str, list[float], list[float], float, float, float]:
@@ -121,7 +182,7 @@ def _limits(where: _Where, seg: dict) -> tuple[str, list[float], list[float], fl
     if not isinstance(lim, dict):
         raise where.fail("limits", f"must be a JSON object, got {type(lim).__name__}")
     kind = lim.get("kind")
-    if kind not in LIMIT_FIELDS:
+    if not isinstance(kind, str) or kind not in LIMIT_FIELDS:
         raise w.fail("kind", f"must be one of {sorted(LIMIT_FIELDS)}, got {kind!r}")
     w.fields(
         lim, LIMIT_FIELDS[kind] | {"kind"}, OPTIONAL_LIMIT_FIELDS.get(kind, set()) | {"source"}
@@ -130,9 +191,15 @@ def _limits(where: _Where, seg: dict) -> tuple[str, list[float], list[float], fl
         return kind, [-math.pi] * 2, [math.pi] * 2, math.pi, -math.inf, math.inf
     tlo, thi = w.range_deg(lim, "twist_deg")
     if kind == "cone" or "swing_max_deg" in lim:
-        smax_deg = w.number(lim, "swing_max_deg", positive=True)
+        smax_deg = w.number(lim, "swing_max_deg")
         if smax_deg >= 180:
             raise w.fail("swing_max_deg", f"must be < 180 degrees, got {smax_deg}")
+        if smax_deg < MIN_SWING_MAX_DEG:
+            raise w.fail(
+                "swing_max_deg",
+                f"must be >= {MIN_SWING_MAX_DEG} degrees, got {smax_deg:g}; to fix the "
+                "direction use kind 'box' with [0, 0] swing ranges",
+            )
         smax = math.radians(smax_deg)
     else:
         smax = math.radians(DEFAULT_SWING_MAX_DEG)
@@ -201,6 +268,33 @@ def _resolve(path: str | Path | None, variant: str) -> Path:
         ) from None
 
 
+def _read_json(path: Path, kind: str) -> Any:
+    """The JSON document of a `kind` ("body" or "spine") file; every failure names the file.
+    Objects keep the keys given twice (`_Object.duplicates`) for `_Where.fields` to reject."""
+    shown = str(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{shown}: no such {kind} file") from None
+    except IsADirectoryError:
+        raise BodyFileError(f"{shown}: is a directory; expected a {kind} JSON file") from None
+    except UnicodeDecodeError as e:
+        raise BodyFileError(
+            f"{shown}: not UTF-8 text (byte 0x{e.object[e.start]:02x} at offset {e.start}); "
+            f"a {kind} file is JSON saved as UTF-8"
+        ) from None
+    except OSError as e:
+        raise BodyFileError(f"{shown}: cannot read the {kind} file: {e.strerror}") from None
+    try:
+        return json.loads(text, object_pairs_hook=_object)
+    except json.JSONDecodeError as e:
+        raise BodyFileError(
+            f"{shown}: not valid JSON: {e.msg} at line {e.lineno} column {e.colno}"
+        ) from None
+    except RecursionError:
+        raise BodyFileError(f"{shown}: not valid JSON: nested too deeply") from None
+
+
 def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Body:
     """Load and validate a body file (schema: data/SCHEMA.md).
 
@@ -215,16 +309,7 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
     """
     path = _resolve(path, variant)
     shown = str(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{shown}: no such body file") from None
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise BodyFileError(
-            f"{shown}: not valid JSON: {e.msg} at line {e.lineno} column {e.colno}"
-        ) from None
+    doc = _read_json(path, "body")
     top = _Where(shown, "top level")
     top.fields(doc, TOP_FIELDS - {"description", "spine"}, {"description", "spine"})
     if doc["schema"] != SCHEMA:
@@ -298,6 +383,8 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
             sw = _Where(shown, f"{where.entry}, spheres[{s_k}]")
             sw.fields(s, {"origin", "radius"}, {"features"})
             feats = []
+            if not isinstance(s.get("features", []), list):
+                raise sw.fail("features", "must be a list of {name, direction} objects")
             for f_k, f in enumerate(s.get("features", [])):
                 fw = _Where(shown, f"{sw.entry}, features[{f_k}]")
                 fw.fields(f, FEATURE_FIELDS)
@@ -310,7 +397,13 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
                     )
                 feature_seen.add(fname)
                 feats.append((fname, fw.vector(f, "direction", unit=True)))
-            sph.append((sw.vector(s, "origin"), sw.number(s, "radius", positive=True), feats))
+            sph.append(
+                (
+                    sw.vector(s, "origin", bound=POSITION_M),
+                    sw.number(s, "radius", within=LENGTH_M, unit="m"),
+                    feats,
+                )
+            )
         parsed.append(
             dict(
                 name=nm,
@@ -319,9 +412,9 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
                 std=std,
                 direction=direction,
                 spheres=sph,
-                length=where.number(seg, "length", positive=True),
-                mass=where.number(seg, "mass", nonneg=True),
-                centroid=where.vector(seg, "centroid"),
+                length=where.number(seg, "length", within=LENGTH_M, unit="m"),
+                mass=where.number(seg, "mass", within=MASS_KG, unit="kg"),
+                centroid=where.vector(seg, "centroid", bound=POSITION_M),
                 limits=_limits(where, seg),
             )
         )
@@ -363,6 +456,8 @@ def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Bod
     body = _build(name, shown, root_name, [parsed[k] for k in order], [depth[k] for k in order])
     if "spine" in doc:
         spine_path = path.parent / top.string(doc, "spine")
+        if not spine_path.is_file():
+            raise top.fail("spine", f"no spine file at {str(spine_path)!r} (relative to the body)")
         spine = load_spine(spine_path)
         for joint, seg in zip(spine.joint_names, spine.segment_names):
             if seg not in body.segment_names:
@@ -472,72 +567,130 @@ def _stand_on_ground(body: Body) -> Body:
 
 
 def load_spine(path: str | Path | None = None) -> Spine:
-    """Load a spine database (default: data/spine.json, schema "diffbody.spine/1",
-    described in data/README.md).
+    """Load and validate a spine database (default: data/spine.json; schema
+    "diffbody.spine/1", data/SCHEMA.md).
 
     Raises:
-        BodyFileError: the file is malformed; the message names the file, the joint and the
-            field.
+        BodyFileError: the file is malformed; the message names the file, the joint (or
+            vertebra) and the field, and what is expected.
     """
     path = data_file("spine.json") if path is None else Path(path)
     shown = str(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{shown}: no such spine file") from None
-    except json.JSONDecodeError as e:
-        raise BodyFileError(f"{shown}: not valid JSON: {e.msg} at line {e.lineno}") from None
-    if not isinstance(doc, dict) or doc.get("schema") != SPINE_SCHEMA:
-        raise BodyFileError(f"{shown}: top level, field 'schema': must be {SPINE_SCHEMA!r}")
-    rest, lower, upper, disc, offset, names, segs = [], [], [], [], [], [], []
-    for k, j in enumerate(doc.get("joints", [])):
-        entry = f"{shown}: joint {j.get('name', '?')!r} (joints[{k}])"
-        try:
-            lim = j["limits_deg"]
-            lo = [float(lim[r][0]) for r in SPINE_ROTATIONS]
-            hi = [float(lim[r][1]) for r in SPINE_ROTATIONS]
-            r = [float(x) for x in j["rest_deg"]]
-            row = (
-                j["name"],
-                j["segment"],
-                r,
-                lo,
-                hi,
-                float(j["disc_height_mm"]),
-                [float(x) for x in j["flexion_axis_offset_mm"]],
-            )
-        except (KeyError, TypeError, ValueError, IndexError) as e:
-            raise BodyFileError(
-                f"{entry}: missing or malformed field ({e!r}); see data/README.md"
-            ) from None
-        if not all(np.isfinite(row[2] + row[3] + row[4])) or len(r) != 3:
-            raise BodyFileError(f"{entry}, field 'rest_deg'/'limits_deg': 3 finite angles expected")
-        for axis, name in enumerate(SPINE_ROTATIONS):
-            if not lo[axis] <= r[axis] <= hi[axis]:
-                raise BodyFileError(
-                    f"{entry}, field 'limits_deg.{name}': the rest angle {r[axis]} must lie "
-                    f"within [lo, hi] = [{lo[axis]}, {hi[axis]}]"
+    doc = _read_json(path, "spine")
+    top = _Where(shown, "top level")
+    top.fields(doc, SPINE_TOP_FIELDS, SPINE_OPTIONAL_FIELDS)
+    if doc["schema"] != SPINE_SCHEMA:
+        raise top.fail("schema", f"must be {SPINE_SCHEMA!r}, got {doc['schema']!r}")
+    if "sources" in doc and (
+        not isinstance(doc["sources"], list) or not all(isinstance(s, str) for s in doc["sources"])
+    ):
+        raise top.fail("sources", "must be a list of citation strings")
+    if "angles" in doc:
+        top.string(doc, "angles")
+    joints = doc["joints"]
+    if not isinstance(joints, list) or not joints:
+        raise top.fail("joints", "must be a non-empty list of joint objects, top to bottom")
+
+    rows = []
+    for k, j in enumerate(joints):
+        label = j.get("name") if isinstance(j, dict) else None
+        where = _Where(shown, f"joint {label!r} (joints[{k}])" if label else f"joints[{k}]")
+        where.fields(j, SPINE_JOINT_FIELDS, {"source"})
+        name, seg = where.string(j, "name"), where.string(j, "segment")
+        for field, value in (("name", name), ("segment", seg)):
+            other = [r[field] for r in rows]
+            if value in other:
+                raise where.fail(
+                    field, f"duplicate {field} {value!r} (also joints[{other.index(value)}])"
                 )
-        names.append(row[0])
-        segs.append(row[1])
-        rest.append(row[2])
-        lower.append(row[3])
-        upper.append(row[4])
-        disc.append(row[5])
-        offset.append(row[6])
-    if not names:
-        raise BodyFileError(f"{shown}: top level, field 'joints': must be a non-empty list")
-    verts = doc.get("vertebrae", [])
+        if seg == WHOLE_BODY:
+            raise where.fail("segment", f"{WHOLE_BODY!r} is not a segment a spine joint moves")
+        rest = where.numbers(j, "rest_deg", 3, "(flexion, axial, lateral) in degrees")
+        if not isinstance(j["limits_deg"], dict):
+            raise where.fail("limits_deg", "must be an object {flexion, axial, lateral: [lo, hi]}")
+        lw = _Where(shown, where.entry + ", limits_deg")
+        lw.fields(j["limits_deg"], set(SPINE_ROTATIONS))
+        lo_hi = [lw.range_deg(j["limits_deg"], r, SPINE_ANGLE_DEG) for r in SPINE_ROTATIONS]
+        for axis, rot in enumerate(SPINE_ROTATIONS):
+            lo, hi = (math.degrees(x) for x in lo_hi[axis])
+            if not lo - 1e-9 <= rest[axis] <= hi + 1e-9:
+                raise where.fail(
+                    "rest_deg",
+                    f"the {rot} rest angle {rest[axis]:g} must lie within limits_deg.{rot} "
+                    f"[{lo:g}, {hi:g}]",
+                )
+        rows.append(
+            dict(
+                name=name,
+                segment=seg,
+                rest=np.radians(rest),
+                lower=[x[0] for x in lo_hi],
+                upper=[x[1] for x in lo_hi],
+                disc=where.number(j, "disc_height_mm", within=DISC_HEIGHT_MM, unit="mm"),
+                offset=[
+                    _bounded(where, "flexion_axis_offset_mm", x, AXIS_OFFSET_MM, "mm")
+                    for x in where.numbers(j, "flexion_axis_offset_mm", 2, "[x, z] in mm")
+                ],
+            )
+        )
+    names = tuple(r["name"] for r in rows)
+    initiator = doc.get("initiator", DEFAULT_SPINE_INITIATOR)
+    if "initiator" in doc:
+        top.string(doc, "initiator")
+    if initiator not in names:
+        raise top.fail(
+            "initiator",
+            f"no joint {initiator!r}: name the joint where a bend begins by default, one of "
+            f"{list(names)}" + ("" if "initiator" in doc else " (the default is T12_L1)"),
+        )
+
+    verts = doc["vertebrae"]
+    # The top joint (C7-T1) moves the neck; every joint below it moves a vertebra.
+    expected = [r["segment"] for r in rows[1:]]
+    if not isinstance(verts, list):
+        raise top.fail("vertebrae", "must be a list of vertebra objects")
+    sizes = []
+    for k, v in enumerate(verts):
+        label = v.get("name") if isinstance(v, dict) else None
+        vw = _Where(shown, f"vertebra {label!r} (vertebrae[{k}])" if label else f"vertebrae[{k}]")
+        vw.fields(v, {"name", "size_mm"}, {"source"})
+        vname = vw.string(v, "name")
+        if k >= len(expected) or vname != expected[k]:
+            raise vw.fail(
+                "name",
+                f"expected {expected[k]!r}, the segment of joints[{k + 1}]"
+                if k < len(expected)
+                else f"one vertebra per joint below the top one: {len(expected)} expected",
+            )
+        size = vw.numbers(v, "size_mm", 3, "[depth, breadth, height] in mm")
+        for x in size:
+            _bounded(vw, "size_mm", x, VERTEBRA_SIZE_MM, "mm")
+        sizes.append(size)
+    if len(verts) < len(expected):
+        raise top.fail(
+            "vertebrae",
+            f"missing {expected[len(verts) :]}: one vertebra per joint below the top one, "
+            "in the joints' order",
+        )
+
     return Spine(
-        joint_names=tuple(names),
-        # A pose's spine target bends from the thoracolumbar junction unless told otherwise.
-        initiator=names.index("T12_L1") if "T12_L1" in names else len(names) // 2,
-        segment_names=tuple(segs),
-        vertebra_names=tuple(v["name"] for v in verts),
-        rest=jnp.deg2rad(jnp.asarray(rest)),
-        lower=jnp.deg2rad(jnp.asarray(lower)),
-        upper=jnp.deg2rad(jnp.asarray(upper)),
-        disc_heights=jnp.asarray(disc) / 1000.0,
-        flexion_axis_offsets=jnp.asarray(offset) / 1000.0,
-        vertebra_sizes=jnp.asarray([v["size_mm"] for v in verts]).reshape(-1, 3) / 1000.0,
+        joint_names=names,
+        initiator=names.index(initiator),
+        segment_names=tuple(r["segment"] for r in rows),
+        vertebra_names=tuple(expected),
+        rest=jnp.asarray(np.stack([r["rest"] for r in rows])),
+        lower=jnp.asarray([r["lower"] for r in rows]),
+        upper=jnp.asarray([r["upper"] for r in rows]),
+        disc_heights=jnp.asarray([r["disc"] for r in rows]) / 1000.0,
+        flexion_axis_offsets=jnp.asarray([r["offset"] for r in rows]) / 1000.0,
+        vertebra_sizes=jnp.asarray(np.reshape(sizes, (-1, 3))) / 1000.0,
     )
+
+
+def _bounded(where: _Where, field: str, x: float, bound, unit: str = "") -> float:
+    """x within bound, (lo, hi) or b for [-b, b], in `unit`; else a BodyFileError."""
+    lo, hi = bound if isinstance(bound, tuple) else (-bound, bound)
+    if not lo <= x <= hi:
+        unit = f" {unit}" if unit else ""
+        raise where.fail(field, f"must lie in [{lo:g}, {hi:g}]{unit}, got {x:g}")
+    return x

@@ -167,14 +167,20 @@ BAD = [  # (id, mutation, entry fragment, field, message fragment)
         "length",
         "must be a number",
     ),
-    ("negative length", _set(["left_forearm", "length"], -0.26), "'left_forearm'", "length", "> 0"),
+    (
+        "negative length",
+        _set(["left_forearm", "length"], -0.26),
+        "'left_forearm'",
+        "length",
+        "[0.0001, 10] m",
+    ),
     ("nan length", _set(["trunk", "length"], float("nan")), "'trunk'", "length", "finite"),
     (
         "negative radius",
         _set(["trunk", "spheres", 0, "radius"], -0.1),
         "spheres[0]",
         "radius",
-        "> 0",
+        "[0.0001, 10] m",
     ),
     (
         "unknown parent",
@@ -210,7 +216,7 @@ BAD = [  # (id, mutation, entry fragment, field, message fragment)
         "hang straight down",
     ),
     ("unknown limit kind", _set(["trunk", "limits", "kind"], "ball"), "limits", "kind", "box"),
-    ("negative mass", _set(["trunk", "mass"], -1.0), "'trunk'", "mass", ">= 0"),
+    ("negative mass", _set(["trunk", "mass"], -1.0), "'trunk'", "mass", "[0, 1000] kg"),
     ("duplicate feature", _dup_feature, "features[0]", "name", "unique"),
     (
         "zero feature direction",
