@@ -19,6 +19,10 @@ statistics (Gordon et al. 2014) were not used and may differ slightly.
 Not written: the subject id and the demographic columns (Gender, Date, Installation,
 Component, Branch, PrimaryMOS, SubjectsBirthLocation, SubjectNumericRace, Ethnicity, DODRace,
 Age, and the self-reported Heightin and Weightlbs).
+
+Also writes ``data/ansur2_subjects.csv``: every subject (sex, 0-based row in its file) with
+the 21 measurements diffbody models, in the same units, for the population prior
+(`diffbody.PopulationPrior`) and the held-out benchmark (benchmarks/anthropometry.py).
 """
 
 from __future__ import annotations
@@ -32,6 +36,32 @@ import numpy as np
 REPO = pathlib.Path(__file__).resolve().parent.parent
 DEFAULT_SOURCE = REPO.parent / "shared" / "reference" / "ansur2"
 OUTPUT = REPO / "data" / "ansur2_percentiles.csv"
+SUBJECTS = REPO / "data" / "ansur2_subjects.csv"
+# The measurements diffbody models (diffbody/_measurements.py), written per subject for the
+# population prior and the held-out benchmark.
+SUBJECT_COLUMNS = (
+    "stature",
+    "weightkg",
+    "span",
+    "acromialheight",
+    "cervicaleheight",
+    "sittingheight",
+    "trochanterionheight",
+    "kneeheightmidpatella",
+    "lateralfemoralepicondyleheight",
+    "tibialheight",
+    "biacromialbreadth",
+    "bideltoidbreadth",
+    "hipbreadth",
+    "chestdepth",
+    "shoulderelbowlength",
+    "acromionradialelength",
+    "radialestylionlength",
+    "handlength",
+    "footlength",
+    "buttockkneelength",
+    "headlength",
+)
 
 FILES = (("male", "ANSUR_II_MALE_Public.csv"), ("female", "ANSUR_II_FEMALE_Public.csv"))
 
@@ -101,6 +131,22 @@ def main(argv: list[str]) -> None:
             lines.append(",".join(fields) + "\n")
     OUTPUT.write_text("".join(lines), encoding="utf-8")
     print(f"wrote {OUTPUT} ({len(lines) - 2} rows)")
+
+    # Every subject, in file order (`row` is the 0-based row of its sex's file), with the
+    # modelled measurements in the same units.
+    lines = [
+        HEADER.replace("per-sex summary statistics", "subjects, the measurements diffbody models")
+        .replace(" (unweighted sample statistics, numpy linear percentiles)", "")
+        .replace(" sd has ddof=1.", " row: 0-based row in its sex's file."),
+        ",".join(("sex", "row") + SUBJECT_COLUMNS) + "\n",
+    ]
+    for sex, filename in FILES:
+        data = read_measurements(source / filename)
+        for k in range(data["stature"].size):
+            values = [_fmt(data[c][k]) for c in SUBJECT_COLUMNS]
+            lines.append(",".join([sex, str(k)] + values) + "\n")
+    SUBJECTS.write_text("".join(lines), encoding="utf-8")
+    print(f"wrote {SUBJECTS} ({len(lines) - 2} subjects)")
 
 
 if __name__ == "__main__":
