@@ -1,12 +1,19 @@
 """diffbody: differentiable inverse kinematics for articulated, sphere-skinned bodies."""
 
+from ._anthropometry import (
+    PopulationScaling,
+    scale_population,
+    scale_to,
+    scale_to_percentile,
+)
 from ._batch import solve_reach_batch
 from ._body import Body, Pose, Spine
 from ._export import export_mjcf, export_urdf, mujoco_joint_names, mujoco_qpos, urdf_joint_values
 from ._kinematics import Kinematics, forward
 from ._limits import STOP_COLUMNS, angles_from_swing, stop_violation, swing_vector, within_limits
-from ._loading import BodyFileError, load_body, load_spine
+from ._loading import BodyFileError, load_body, load_spine, save_body
 from ._local_frames import bone_descriptors, local_frame, local_frames, smooth_reference
+from ._measurements import MEASUREMENT_NAMES, MEASUREMENTS, measure, measurements
 from ._orientation import (
     azimuth_polar_to_inclination_azimuth,
     azimuth_polar_to_vector,
@@ -19,8 +26,10 @@ from ._orientation import (
     vector_to_inclination_azimuth,
 )
 from ._posture import apply_standard_orientation, pose_from_joint_positions
+from ._prior import PopulationPrior
 from ._reach import ReachResult, ReachStatus, solve_reach
 from ._render import draw, render
+from ._scaling import SCALE_GROUPS, scale_body
 from ._spine import BendResult, bend_pose, bendspine, movespine, spine_angles, with_spine_angles
 from ._targets import Target
 
@@ -34,6 +43,7 @@ __all__ = [
     "BodyFileError",
     "load_body",
     "load_spine",
+    "save_body",
     # Kinematics
     "Kinematics",
     "forward",
@@ -72,6 +82,18 @@ __all__ = [
     "Target",
     "solve_reach",
     "solve_reach_batch",
+    # Anthropometry
+    "MEASUREMENTS",
+    "MEASUREMENT_NAMES",
+    "measure",
+    "measurements",
+    "PopulationPrior",
+    "PopulationScaling",
+    "SCALE_GROUPS",
+    "scale_body",
+    "scale_population",
+    "scale_to",
+    "scale_to_percentile",
     # Export
     "export_mjcf",
     "export_urdf",

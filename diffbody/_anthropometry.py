@@ -1,16 +1,17 @@
 """Scaling a body to measurements (DESIGN section 7): `scale_to`, `scale_to_percentile`,
 `scale_population`.
 
-The unknowns are the logarithms of the axial and radial scale factors of the scale groups
-(`_scaling.SCALE_GROUPS`: 12 groups, 24 unknowns), solved by optimistix's Gauss-Newton. The
-residuals, in the logarithms of the measurements:
+The unknowns are the axial and radial scale factors of the scale groups
+(`_scaling.SCALE_GROUPS`: 13 groups, 26 unknowns), solved by optimistix's Gauss-Newton. The
+residuals are relative deviations m / target - 1 (the logarithms' deviations to second order):
 
 - each given measurement against its value, with a standard deviation of 1e-5 (0.02 mm of
   stature): reproduced;
-- the others against their mean given the given ones under the population prior, whitened
-  by the conditional covariance: they follow the population where nothing is known;
-- each unknown against 0 with weight 1e-3: the template decides what no measurement sees
-  (the clavicle's thickness, say).
+- the others against their median given the given ones under the population prior
+  (`PopulationPrior`, log space), whitened by the conditional covariance: they follow the
+  population where nothing is known;
+- each scale factor against 1 with weight 1e-3: the template decides what no measurement
+  sees (the clavicle's thickness, say).
 
 The weight is no residual: the masses scale with the volume and are then set to sum to the
 given weight, or to its conditional median.
@@ -18,8 +19,9 @@ given weight, or to its conditional median.
 **Why it is fast.** Every length measurement is piecewise linear in the (not logarithmic)
 scale factors s: joints are sums of scaled lengths, sphere centres and radii scale linearly,
 and extents pick one sphere at each end. So within a piece m(s) = A s exactly, with A the
-Jacobian of `measure` (one `jax.jacfwd` at the template, shared by every person). The solve
-runs on A alone (a 20 x 24 matrix: microseconds), and the exact measurements of the answer
+Jacobian of `measure` (one `jax.jacfwd` at the template, shared by every person), and the
+residuals above are linear in s: each person's solve is a linear least-squares problem on
+a 20 x 26 matrix (Gauss-Newton's first step solves it). The exact measurements of the answer
 are then checked against A s; where an answer crossed into another piece (another sphere at
 an extent), A is recomputed there and that person solved again.
 """
@@ -32,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+from jaxtyping import ArrayLike
 
 from ._batch import _Progress
 from ._body import Body
@@ -41,7 +44,7 @@ from ._prior import PopulationPrior, ansur2_subjects, check_sex
 from ._scaling import SCALE_GROUPS, per_segment, scale_body
 
 GIVEN_SD = 1e-5  # log units: a given measurement is reproduced to 1e-5 relative
-TEMPLATE_PULL = 1e-3  # weight of each log scale factor's pull toward the template's
+TEMPLATE_PULL = 1e-3  # weight of each scale factor's pull toward the template's (1)
 MAX_SD = 6.0  # a given measurement further from its conditional mean is refused
 LENGTHS = tuple(n for n in MEASUREMENT_NAMES if UNITS[n] == "m")
 N_GROUPS = len(SCALE_GROUPS)
@@ -57,7 +60,7 @@ class _Args(NamedTuple):
     whiten: jax.Array  # (L, L) the conditional whitening of the others, zero on given rows
 
 
-def scaled_body(template: Body, log_scales: jax.Array, total_mass=None) -> Body:
+def scaled_body(template: Body, log_scales: ArrayLike, total_mass=None) -> Body:
     """The template with group scale factors exp(log_scales) ((2, n_group): axial, radial)."""
     s = jnp.exp(log_scales)
     return scale_body(
@@ -82,28 +85,25 @@ def _linear_model(template: Body, scales: jax.Array) -> jax.Array:
     return jax.jacfwd(_lengths, argnums=1)(template, scales)
 
 
-def _residuals(log_scales: jax.Array, args: _Args) -> jax.Array:
-    d = jnp.log(args.A @ jnp.exp(log_scales)) - args.log_target
+def _residuals(scales: jax.Array, args: _Args) -> jax.Array:
+    # Relative deviations m / target - 1: the logarithms' deviations to second order, and
+    # linear in the scales, so that the whole problem is linear within a piece.
+    d = (args.A @ scales) * jnp.exp(-args.log_target) - 1.0
     given = jnp.where(args.given, d / GIVEN_SD, 0.0)
     soft = args.whiten @ jnp.where(args.given, 0.0, d)
-    return jnp.concatenate([given, soft, TEMPLATE_PULL * log_scales])
+    return jnp.concatenate([given, soft, TEMPLATE_PULL * (scales - 1.0)])
 
 
 def _solve(args: _Args, y0: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Log scale factors (2 n_group,) from y0, and whether optimistix converged."""
-    tol = 1e-8 if args.log_target.dtype == jnp.float64 else 1e-5
+    """Scale factors (2 n_group,) from y0, and whether optimistix converged. The problem is
+    linear least squares within a piece: Gauss-Newton solves it in its first step and
+    confirms in the second."""
+    tol = 1e-10 if args.log_target.dtype == jnp.float64 else 1e-6
     sol = optx.least_squares(
-        _residuals,
-        # The logarithms of the measurements are nearly linear in the log scale factors:
-        # Gauss-Newton converges in about 6 steps where Levenberg-Marquardt, damped by the
-        # stiff given rows, takes 60 to 200 (measured).
-        optx.GaussNewton(rtol=tol, atol=tol),
-        y0,
-        args,
-        max_steps=30,
-        throw=False,
+        _residuals, optx.GaussNewton(rtol=tol, atol=tol), y0, args, max_steps=10, throw=False
     )
-    return sol.value, sol.result == optx.RESULTS.successful
+    ok = (sol.result == optx.RESULTS.successful) & jnp.all(sol.value > 0)
+    return sol.value, ok
 
 
 _solve_many_jit = jax.jit(jax.vmap(_solve))
@@ -115,7 +115,7 @@ PIECE_TOL = 1e-9  # relative: an answer whose exact lengths differ more left its
 def _solve_rows(template: Body, args: _Args, y0: np.ndarray, chunk: int, bar) -> tuple:
     """Solve every row (leading axis of the row-wise fields) in chunks, then re-solve the
     rows whose answer left the linear model's piece with A recomputed there (module
-    docstring). Returns log scales (n, 2 n_group), converged (n,) and the exact lengths."""
+    docstring). Returns scales (n, 2 n_group), converged (n,) and the exact lengths."""
     dtype = args.log_target.dtype
     n = y0.shape[0]
     A = np.broadcast_to(np.asarray(args.A), (n,) + args.A.shape[-2:]).copy()
@@ -134,18 +134,18 @@ def _solve_rows(template: Body, args: _Args, y0: np.ndarray, chunk: int, bar) ->
             )
             xs, oks = _solve_many_jit(part_args, jnp.asarray(y0[pad], dtype))
             xs = np.asarray(xs)
-            lengths = np.asarray(_lengths_many_jit(template, jnp.asarray(np.exp(xs), dtype)))
+            lengths = np.asarray(_lengths_many_jit(template, jnp.asarray(xs, dtype)))
             k = len(part)
             x[part], ok[part], exact[part] = xs[:k], np.asarray(oks)[:k], lengths[:k]
             if attempt == 0 and bar is not None:
                 bar.update(min(start + chunk, n))
-        linear = np.einsum("nij,nj->ni", A[rows], np.exp(x[rows]))
+        linear = np.einsum("nij,nj->ni", A[rows], x[rows])
         off = np.max(np.abs(exact[rows] / linear - 1), axis=1) > PIECE_TOL
         rows = rows[off]
         if not len(rows):
             break
         for i in rows:  # few: another sphere at an extent
-            A[i] = np.asarray(_linear_model_jit(template, jnp.asarray(np.exp(x[i]), dtype)))
+            A[i] = np.asarray(_linear_model_jit(template, jnp.asarray(x[i], dtype)))
         y0 = x
     return x, ok & ~np.isin(np.arange(n), rows), exact
 
@@ -162,8 +162,9 @@ def _solve_people(template: Body, given, target, whiten, chunk: int, bar=None) -
         target[:, LENGTHS.index("stature") : LENGTHS.index("stature") + 1], 2 * N_GROUPS, 1
     )
     args = _Args(A, given, target, whiten)
-    x, ok, exact = _solve_rows(template, args, y0 - log_stature, min(chunk, len(target)), bar)
-    return x.reshape(-1, 2, N_GROUPS), ok, exact
+    y0 = np.exp(y0 - log_stature)
+    x, ok, exact = _solve_rows(template, args, y0, min(chunk, len(target)), bar)
+    return np.log(np.maximum(x, 1e-12)).reshape(-1, 2, N_GROUPS), ok, exact
 
 
 def _template(body: Body | None, sex: str) -> Body:
@@ -274,7 +275,7 @@ def scale_to(
     return out
 
 
-def _finish(template: Body, log_scales: jax.Array, mass: float) -> Body:
+def _finish(template: Body, log_scales: ArrayLike, mass: float) -> Body:
     """The scaled body, named as such."""
     body = scaled_body(template, log_scales, jnp.asarray(mass, template.lengths.dtype))
     return dataclasses.replace(body, name=f"{template.name}-scaled", source="diffbody.scale_to")
@@ -296,7 +297,7 @@ def _check_reproduced(body: Body, given: dict[str, float]) -> None:
         )
 
 
-def scale_to_percentile(sex: str, percentile: float, *, body: Body | None = None) -> Body:
+def scale_to_percentile(sex: str, percentile: float | int, *, body: Body | None = None) -> Body:
     """The body of `sex` with every measurement at `percentile` (0-100) of that sex's ANSUR II
     distribution: stature and weight exactly, the other lengths as close as the body's
     proportions allow (least squares, whitened by the population's covariance given stature

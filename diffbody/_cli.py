@@ -88,11 +88,7 @@ def _check_output(option: str, path: str | None) -> None:
 def _body(args):
     from ._loading import load_body
 
-    try:
-        return load_body(args.body, variant=args.variant)
-    except UnicodeDecodeError as e:
-        # Named here as well as in the loader: the decoder's own message names no file.
-        raise ValueError(f"{args.body}: not UTF-8 text (byte {e.object[e.start]:#04x})") from None
+    return load_body(args.body, variant=args.variant)
 
 
 def _check_names(body, effectors: list[str], segments: list[str] | None) -> None:

@@ -173,9 +173,10 @@ MEASUREMENTS: dict[str, Measurement] = {
         "the deltoids' outer breadth: the upper arms' spheres across",
     ),
     "hipbreadth": Measurement(
-        lambda g: g.extent(1, "pelvis", "left_pelvis", "right_pelvis"),
+        lambda g: g.extent(1, "left_pelvis", "right_pelvis"),
         1.0,
-        "the hips' breadth, standing: the pelvis spheres across",
+        "the hips' breadth, standing: the lateral pelvis spheres across (the hemi-pelvis "
+        "links carry the widest sphere of each pelvis ring)",
     ),
     "chestdepth": Measurement(
         lambda g: g.extent(0, "T6", "T7", "T8"),

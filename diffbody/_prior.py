@@ -141,30 +141,43 @@ class PopulationPrior:
             whiten,
         )
 
-    def outliers(self, given: dict[str, float], sd: float = 6.0) -> list[str]:
-        """Messages for the given measurements more than `sd` standard deviations from their
-        mean conditioned on the other given ones (in log space); [] when none is."""
-        names = list(given)
-        if not names:
-            return []
-        x = np.log([given[n] for n in names])
-        out = []
+    def z_scores(self, names, values: np.ndarray) -> np.ndarray:
+        """(n, k) how many standard deviations each of the named measurements (n, k) lies
+        from its mean given the other k - 1 (in log space); with k = 1, from the mean."""
+        names = check_names(names)
+        x = np.log(np.atleast_2d(np.asarray(values, float)))
+        z = np.zeros(x.shape)
         for i, name in enumerate(names):
-            others = names[:i] + names[i + 1 :]
+            others = list(names[:i] + names[i + 1 :])
             c = self.conditional(others)
             j = c.unknown.index(name)
-            mean = c.unknown_mean(x[np.arange(len(names)) != i])[j]
+            mean = c.unknown_mean(np.delete(x, i, axis=1))[:, j]
+            z[:, i] = (x[:, i] - mean) / np.sqrt(c.cov[j, j])
+        return z
+
+    def outliers(self, given: dict[str, float], sd: float = 6.0) -> list[str]:
+        """Messages for the given measurements more than `sd` standard deviations from their
+        mean given the other given ones (`z_scores`); [] when none is."""
+        names = tuple(given)
+        if not names:
+            return []
+        values = np.asarray([given[n] for n in names])
+        z = self.z_scores(names, values[None])[0]
+        out = []
+        for i, name in enumerate(names):
+            if abs(z[i]) <= sd:
+                continue
+            c = self.conditional(names[:i] + names[i + 1 :])
+            j = c.unknown.index(name)
+            mean = c.unknown_mean(np.log(np.delete(values, i)))[j]
             s = float(np.sqrt(c.cov[j, j]))
-            z = (x[i] - mean) / s
-            if abs(z) > sd:
-                lo, hi = np.exp(mean - sd * s), np.exp(mean + sd * s)
-                unit = UNITS[name]
-                given_others = f" given {', '.join(others)}" if others else ""
-                out.append(
-                    f"{name} = {given[name]:g} {unit} is {abs(z):.1f} standard deviations from "
-                    f"the {self.sex} population{given_others}; expected {lo:.3g} to {hi:.3g} "
-                    f"{unit}"
-                )
+            lo, hi = np.exp(mean - sd * s), np.exp(mean + sd * s)
+            unit = UNITS[name]
+            others = f" given {', '.join(names[:i] + names[i + 1 :])}" if len(names) > 1 else ""
+            out.append(
+                f"{name} = {given[name]:g} {unit} is {abs(z[i]):.1f} standard deviations from "
+                f"the {self.sex} population{others}; expected {lo:.3g} to {hi:.3g} {unit}"
+            )
         return out
 
     def expected(self, given: dict[str, float]) -> dict[str, float]:

@@ -22,7 +22,8 @@ from ._body import Body
 # Scale groups: segments scaled together. Left and right share a factor (ANSUR II measures
 # one side), the five lumbar and the twelve thoracic vertebrae each share one.
 SCALE_GROUPS: dict[str, tuple[str, ...]] = {
-    "pelvis": ("pelvis", "left_pelvis", "right_pelvis"),
+    "pelvis": ("pelvis",),
+    "hips": ("left_pelvis", "right_pelvis"),  # the hip joints' spacing
     "lumbar": ("L1", "L2", "L3", "L4", "L5"),
     "thorax": tuple(f"T{i}" for i in range(1, 13)),
     "neck": ("neck",),

@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 import diffbody as db
@@ -306,7 +306,7 @@ def test_bad_spine_file_is_named(tmp_path):
     path.write_text(json.dumps(doc))
     with pytest.raises(
         db.BodyFileError,
-        match=r"spine.json: joint 'T3_T4' \(joints\[3\]\), field 'limits_deg.flexion'",
+        match=r"spine.json: joint 'T3_T4' \(joints\[3\]\), field 'rest_deg'",
     ):
         db.load_spine(path)
     del doc["joints"][2]["limits_deg"]
@@ -316,9 +316,11 @@ def test_bad_spine_file_is_named(tmp_path):
 
 
 def test_bad_arguments_are_rejected(spine):
-    with pytest.raises(ValueError, match="initiator 18"):
+    with pytest.raises(
+        ValueError, match=r"initiator must be an integer joint index in \[0, 17\], got 18"
+    ):
         db.bendspine(spine, spine.rest, jnp.zeros(3), initiator=18)
-    with pytest.raises(ValueError, match="outside joint_range"):
+    with pytest.raises(ValueError, match=r"initiator must lie in joint_range \[5, 9\], got 2"):
         db.bendspine(spine, spine.rest, jnp.zeros(3), initiator=2, joint_range=(5, 9))
     with pytest.raises(KeyError, match="T6_T7"):
         spine.joint_index("T6-T7")
@@ -368,3 +370,373 @@ def test_spine_target_needs_a_spine(tmp_path):
     doc["spine"] = str(db._loading.data_file("spine.json"))
     with pytest.raises(db.BodyFileError, match="'spine'.*moves segment 'neck'"):
         db.load_body(write(doc, tmp_path / "mini_spine.json"))
+
+
+# --- arguments out of range, non-finite targets -----------------------------------------------
+
+NAN, INF = float("nan"), float("inf")
+
+
+# (argument named in the message, bendspine keyword arguments); resistor=3 so that resistance
+# is in use.
+BAD_ARGUMENTS = [
+    *[("resistance", dict(resistor=3, resistance=v)) for v in (1.5, -0.2, NAN, INF)],
+    *[("spread", dict(spread=v)) for v in (0, -1, NAN)],
+    *[
+        (name, {name: v})
+        for name in ("initiator", "resistor")
+        for v in (18, -1, 5.5, 5.0, True, np.array([40]), np.arange(2))
+    ],
+    *[("joint_range", dict(joint_range=v)) for v in ((5, 2), (0, 18), (0.5, 3), (-1, 4))],
+    ("initiator", dict(initiator=2, joint_range=(5, 9))),
+    *[("tol", dict(tol=v)) for v in (0, -1, NAN)],
+    ("current", dict(current="short")),
+    ("current", dict(current="nan")),
+    ("target", dict(target=np.zeros(2))),
+    ("zero_interpolation", dict(zero_interpolation=1)),
+]
+
+
+def _bad_call(spine, kwargs):
+    kwargs = dict(kwargs)
+    current = np.asarray(spine.rest).copy()
+    if kwargs.get("current") == "short":
+        current = current[:17]
+    elif kwargs.get("current") == "nan":
+        current[3, 1] = NAN
+    kwargs.pop("current", None)
+    target = kwargs.pop("target", np.asarray(spine.rest).sum(0))
+    kwargs.setdefault("initiator", 9)
+    return db.bendspine(spine, current, target, **kwargs)
+
+
+@pytest.mark.parametrize(("name", "kwargs"), BAD_ARGUMENTS, ids=lambda x: repr(x)[:40])
+def test_every_argument_out_of_range_is_named(spine, name, kwargs):
+    with pytest.raises(ValueError, match=f"^bendspine: {name} must"):
+        _bad_call(spine, kwargs)
+
+
+def test_integer_scalars_of_any_kind_are_joint_indices(spine):
+    rest = spine.rest
+    ref = db.bendspine(spine, rest, rest.sum(0) + 0.1, initiator=4, resistor=8, resistance=0.5)
+    for i, r in ((np.int64(4), np.int32(8)), (jnp.int32(4), jnp.asarray(8)), (np.array(4), 8)):
+        out = db.bendspine(spine, rest, rest.sum(0) + 0.1, initiator=i, resistor=r, resistance=0.5)
+        np.testing.assert_array_equal(out.angles, ref.angles)
+
+
+def test_eager_calls_compile_once(spine):
+    """The checks run on the host and the kernel is compiled once: Python, numpy and jax
+    scalars of the arguments all reach it as the same arrays."""
+    from diffbody._spine import _bend_kernel
+
+    kernel = _bend_kernel if hasattr(_bend_kernel, "_cache_size") else _bend_kernel.__wrapped__
+    rest = spine.rest
+    db.bendspine(spine, rest, rest.sum(0), initiator=9)
+    before = kernel._cache_size()
+    for kw in (
+        dict(initiator=np.int64(4), resistor=3, resistance=0.5),
+        dict(initiator=jnp.int32(2), joint_range=(0, 5), zero_interpolation=False),
+        dict(initiator=12, spread=2, tol=1e-6, joint_range=np.array([10, 17])),
+    ):
+        db.bendspine(spine, np.asarray(rest), np.asarray(rest).sum(0) + 0.2, **kw)
+    assert kernel._cache_size() == before
+
+
+@pytest.mark.parametrize(
+    ("name", "kwargs"),
+    [
+        ("initiator", dict(initiator=[1, 2, 30])),
+        ("initiator", dict(initiator=1.0)),
+        ("resistance", dict(resistor=3, resistance=[0.0, 1.5, 0.0])),
+        ("resistance", dict(resistor=3, resistance=[0.0, 0.5])),
+        ("joint_range", dict(joint_range=[(0, 17), (5, 2), (0, 17)])),
+        ("initiator", dict(initiator=[1, 2, 9], joint_range=[(0, 17), (0, 17), (10, 17)])),
+        ("spread", dict(spread=0.0)),
+        ("targets", dict(targets=np.zeros(3))),
+    ],
+    ids=lambda x: repr(x)[:40],
+)
+def test_movespine_checks_every_step(spine, name, kwargs):
+    kwargs = dict(kwargs)
+    targets = kwargs.pop("targets", np.tile(np.asarray(spine.rest).sum(0), (3, 1)))
+    kwargs = {k: np.asarray(v) if isinstance(v, list) else v for k, v in kwargs.items()}
+    kwargs.setdefault("initiator", 9)
+    with pytest.raises(ValueError, match=f"^movespine: {name} must"):
+        db.movespine(spine, spine.rest, targets, **kwargs)
+
+
+# A failed eqx.error_if under jax.jit raises jax's JaxRuntimeError (a RuntimeError) or, with
+# some dispatch orders, a ValueError; both carry the check's message.
+RUNTIME_ERRORS = (RuntimeError, ValueError)
+
+
+@pytest.fixture(scope="module")
+def traced_bend(spine):
+    """bendspine with every checked argument traced, compiled once."""
+
+    @jax.jit
+    def f(c, t, i, r, res, rng, spread, tol):
+        out = db.bendspine(
+            spine, c, t, initiator=i, resistor=r, resistance=res, joint_range=rng,
+            spread=spread, tol=tol,
+        )  # fmt: skip
+        return out.angles  # `reached` alone depends on tol: its check must still run
+
+    def call(**kw):
+        rest = np.asarray(spine.rest)
+        a = dict(c=rest, t=rest.sum(0), i=9, r=3, res=0.5, rng=(0, 17), spread=3.0, tol=1e-9)
+        a.update(kw)
+        ints = ("i", "r", "rng")
+        return f(**{k: jnp.asarray(v, int if k in ints else float) for k, v in a.items()})
+
+    return call
+
+
+@pytest.mark.parametrize(
+    ("name", "kw"),
+    [
+        ("resistance", dict(res=1.5)),
+        ("resistance", dict(res=NAN)),
+        ("initiator", dict(i=40)),
+        ("initiator", dict(i=-1)),
+        ("resistor", dict(r=18)),
+        ("joint_range", dict(rng=(5, 2))),
+        ("initiator", dict(i=2, rng=(5, 9))),
+        ("spread", dict(spread=0.0)),
+        ("tol", dict(tol=-1.0)),
+        ("current", dict(c=np.where(np.eye(18, 3) > 0, NAN, 0.0))),
+    ],
+    ids=lambda x: repr(x)[:30],
+)
+def test_traced_arguments_are_checked_at_run_time(traced_bend, name, kw):
+    assert np.all(np.isfinite(traced_bend()))  # in range, the same function runs
+    with pytest.raises(RUNTIME_ERRORS, match=f"bendspine: {name} must"):
+        jax.block_until_ready(traced_bend(**kw))
+
+
+def test_checks_under_vmap_and_movespine_under_jit(spine):
+    rest = spine.rest
+    bend = jax.vmap(
+        lambda res: (
+            db.bendspine(spine, rest, rest.sum(0), initiator=9, resistor=3, resistance=res).angles
+        )
+    )
+    assert bend(jnp.array([0.0, 1.0])).shape == (2, 18, 3)
+    with pytest.raises(RUNTIME_ERRORS, match="bendspine: resistance must lie in"):
+        jax.block_until_ready(bend(jnp.array([0.5, 1.5])))
+    move = jax.jit(
+        lambda i: db.movespine(spine, rest, jnp.tile(rest.sum(0), (3, 1)), initiator=i).angles
+    )
+    assert move(jnp.array([1, 2, 3])).shape == (3, 18, 3)
+    with pytest.raises(RUNTIME_ERRORS, match="movespine: initiator must be an integer joint index"):
+        jax.block_until_ready(move(jnp.array([1, 2, 30])))
+
+
+@pytest.mark.parametrize("resistance", [0.0, 0.5, 1.0])
+def test_non_finite_targets_bend_to_the_limits_and_are_never_reached(spine, resistance):
+    """+inf bends to the upper limits, -inf to the lower, as a huge target does; NaN leaves
+    the rotation alone. None is reached, and no angle is NaN (with resistance 1, inf times a
+    zero weight used to give NaN; inf counted as reached, since inf <= tol * inf)."""
+    rest = np.asarray(spine.rest)
+    lo, hi = np.asarray(spine.lower), np.asarray(spine.upper)
+    kw = dict(initiator=12, resistor=4, resistance=resistance)
+    current = rest.copy()
+    current[:, 2] += 0.3 * (hi - rest)[:, 2]
+    out = db.bendspine(spine, current, np.array([INF, -INF, NAN]), **kw)
+    assert not np.any(out.reached)
+    a = np.asarray(out.angles)
+    assert np.all(np.isfinite(a))
+    np.testing.assert_allclose(a[:, 0], hi[:, 0], atol=1e-12)
+    np.testing.assert_allclose(a[:, 1], lo[:, 1], atol=1e-12)
+    np.testing.assert_array_equal(a[:, 2], current[:, 2])
+    assert out.shortfall[0] == INF and out.shortfall[1] == -INF and np.isnan(out.shortfall[2])
+    huge = db.bendspine(spine, current, np.array([1e300, -1e300, current[:, 2].sum()]), **kw)
+    np.testing.assert_array_equal(np.asarray(huge.angles)[:, :2], a[:, :2])
+    assert not np.any(huge.reached[:2]) and bool(huge.reached[2])
+    # also compiled, the target traced
+    jitted = jax.jit(lambda t: db.bendspine(spine, current, t, **kw))(jnp.array([INF, -INF, NAN]))
+    np.testing.assert_allclose(jitted.angles, a, atol=1e-12)
+    assert not np.any(jitted.reached)
+
+
+def test_resistance_above_one_is_rejected(spine):
+    """It made r_i negative: weights of both signs, angles far outside the limits, reported
+    reached."""
+    rest = spine.rest
+    with pytest.raises(ValueError, match=r"resistance must lie in \[0, 1\], got 1.5"):
+        db.bendspine(spine, rest, rest.sum(0) + 0.3, initiator=12, resistor=4, resistance=1.5)
+
+
+def test_unbending_with_joints_on_both_sides_of_rest_keeps_the_limits(spine):
+    """Axial rotation: the upper joints turned fully left, the lower ones fully right, three
+    quarters of the way back to the rest sum. Joints left of rest and right of rest both
+    return; the weighted formula alone pushed some past their limits (by 0.05 rad)."""
+    rest = np.asarray(spine.rest)
+    lo, hi = np.asarray(spine.lower), np.asarray(spine.upper)
+    current = rest.copy()
+    current[:, 1] = np.where(np.arange(18) < 8, hi[:, 1], lo[:, 1])
+    target = current.sum(0)
+    target[1] = rest[:, 1].sum() + 0.8 * (current[:, 1].sum() - rest[:, 1].sum())
+    for zero in (True, False):
+        out = db.bendspine(spine, current, target, initiator=9, zero_interpolation=zero)
+        a = np.asarray(out.angles)
+        assert np.all(a >= lo - 1e-12) and np.all(a <= hi + 1e-12)
+        assert np.all(out.reached)
+        np.testing.assert_allclose(a.sum(0), target, atol=1e-9)
+    # at the rest sum every joint is back at rest
+    target[1] = rest[:, 1].sum()
+    out = db.bendspine(spine, current, target, initiator=9)
+    np.testing.assert_allclose(np.asarray(out.angles)[:, 1], rest[:, 1], atol=1e-12)
+
+
+BAD_INDICES = [-1, 18, 40, 5.5, 5.0, True, np.array([4]), np.arange(2)]
+# per rotation: a fraction of the reachable interval (outside [0, 1]: out of reach) or a value
+target_parts = st.one_of(
+    st.tuples(st.just("frac"), st.floats(-0.5, 1.5)),
+    st.tuples(st.just("frac"), st.sampled_from([0.0, 1.0])),
+    st.tuples(st.just("value"), st.sampled_from([INF, -INF, NAN, 1e300, -1e300, 1e12])),
+)
+
+
+@st.composite
+def bend_arguments(draw):
+    """bendspine's keyword arguments, each out of range or of the wrong kind one time in
+    twelve (so that most calls are valid), else in range; the initiator then lies in the
+    joint range."""
+
+    def pick(good, bad):
+        return draw(bad if draw(st.integers(0, 11)) == 0 else good)
+
+    index = st.one_of(st.integers(0, 17), st.integers(0, 17).map(np.int64))
+    pairs = st.tuples(st.integers(0, 17), st.integers(0, 17)).map(lambda p: tuple(sorted(p)))
+    bad_pairs = st.sampled_from([(5, 2), (0, 18), (-1, 4), (0.5, 3), (3,)])
+    if draw(st.integers(0, 11)) == 0:
+        joint_range, (a, b) = draw(bad_pairs), (0, 17)
+    else:
+        joint_range = draw(st.one_of(st.none(), pairs))
+        a, b = (0, 17) if joint_range is None else joint_range
+    inside = st.integers(a, b)
+    return dict(
+        initiator=pick(inside, st.one_of(index, st.sampled_from(BAD_INDICES))),
+        resistor=pick(st.one_of(st.none(), index), st.sampled_from(BAD_INDICES)),
+        resistance=pick(
+            st.one_of(st.floats(0.0, 1.0), st.sampled_from([0.0, 1.0])),
+            st.sampled_from([-0.2, 1.5, NAN, INF, -INF]),
+        ),
+        joint_range=joint_range,
+        spread=pick(st.floats(0.05, 20.0), st.sampled_from([0.0, -1.0, NAN, INF])),
+        zero_interpolation=draw(st.booleans()),
+    )
+
+
+def _is_index(v):
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 0 <= v <= 17
+
+
+def _in_range(kw):
+    """Whether bendspine must accept these arguments."""
+    i, r, res, rng, spread = (
+        kw[k] for k in ("initiator", "resistor", "resistance", "joint_range", "spread")
+    )
+    a, b = (0, 17) if rng is None else (rng + (None, None))[:2]
+    return (
+        _is_index(i)
+        and (r is None or _is_index(r))
+        and 0 <= res <= 1
+        and np.isfinite(spread)
+        and spread > 0
+        and (rng is None or (len(rng) == 2 and all(_is_index(x) for x in rng) and a <= b))
+        and (not _is_index(i) or rng is None or a <= i <= b)
+    )
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.integers(0, 2**32 - 1),
+    st.sampled_from(["uniform", "limits", "rest", "beyond"]),
+    st.tuples(target_parts, target_parts, target_parts),
+    bend_arguments(),
+)
+def test_any_arguments_give_an_error_or_a_valid_bend(spine, seed, kind, parts, kw):
+    """Random arguments, in range or not: out of range raises ValueError; otherwise the angles
+    are finite and within the limits, frozen joints stay, the sum is the target wherever
+    reached, and reached is exactly "finite and within what the active joints can reach"."""
+    n = 18
+    lo, hi, rest = (np.asarray(x) for x in (spine.lower, spine.upper, spine.rest))
+    rng = np.random.default_rng(seed)
+    u = rng.uniform(size=lo.shape)
+    current = {
+        "uniform": lo + (hi - lo) * u,
+        "limits": np.where(u < 0.5, lo, hi),
+        "rest": rest,
+        "beyond": lo + (hi - lo) * (1.4 * u - 0.2),  # partly outside the limits: clipped
+    }[kind]
+    clipped = np.clip(current, lo, hi)
+    valid = _in_range(kw)
+    event(f"arguments in range: {valid}")
+    a, b = kw["joint_range"] if valid and kw["joint_range"] is not None else (0, n - 1)
+    active = (np.arange(n) >= a) & (np.arange(n) <= b)
+    reach_lo = np.where(active[:, None], lo, clipped).sum(0)
+    reach_hi = np.where(active[:, None], hi, clipped).sum(0)
+    target = np.array(
+        [
+            reach_lo[k] + x * (reach_hi[k] - reach_lo[k]) if how == "frac" else x
+            for k, (how, x) in enumerate(parts)
+        ]
+    )
+    if not valid:
+        with pytest.raises(ValueError, match="^bendspine: "):
+            db.bendspine(spine, current, target, **kw)
+        return
+    out = db.bendspine(spine, current, target, **kw)
+    angles, reached = np.asarray(out.angles), np.asarray(out.reached)
+    assert np.all(np.isfinite(angles))
+    assert np.all(angles >= lo - 1e-9) and np.all(angles <= hi + 1e-9)
+    np.testing.assert_array_equal(angles[~active], clipped[~active])
+    sums = angles.sum(0)
+    finite = np.isfinite(target)
+    margin = 1e-9 * np.maximum(1.0, np.abs(np.where(finite, target, 0.0)))
+    inside = finite & (target >= reach_lo - margin) & (target <= reach_hi + margin)
+    strictly_inside = finite & (target >= reach_lo + margin) & (target <= reach_hi - margin)
+    assert not np.any(reached & ~inside)
+    assert np.all(reached[strictly_inside])
+    np.testing.assert_allclose(sums[reached], target[reached], rtol=1e-12, atol=1e-9)
+    # beyond reach (inf included) the active joints are at their limits; NaN: nothing moves
+    up, down = ~np.isnan(target) & (target > reach_hi + margin), target < reach_lo - margin
+    np.testing.assert_allclose(angles[active][:, up], hi[active][:, up], atol=1e-12)
+    np.testing.assert_allclose(angles[active][:, down], lo[active][:, down], atol=1e-12)
+    np.testing.assert_array_equal(angles[:, np.isnan(target)], clipped[:, np.isnan(target)])
+
+
+def test_float32_keeps_the_limits_and_reaches_feasible_targets(spine):
+    """The same guarantees in float32, to its rounding (limits 1e-5 rad, sums the default
+    tol of 2e-4 rad)."""
+    f32 = jax.tree.map(lambda x: x.astype(jnp.float32) if isinstance(x, jax.Array) else x, spine)
+    lo, hi = np.asarray(f32.lower, float), np.asarray(f32.upper, float)
+    rng = np.random.default_rng(0)
+    for k in range(12):
+        current = (
+            np.where(rng.uniform(size=lo.shape) < 0.5, lo, hi)
+            if k % 2
+            else lo + (hi - lo) * rng.uniform(size=lo.shape)
+        )
+        frac = rng.uniform(-0.2, 1.2, size=3)
+        target = lo.sum(0) + frac * (hi - lo).sum(0)
+        target[k % 3] = (INF, -INF, NAN)[k % 3] if k >= 9 else target[k % 3]
+        out = db.bendspine(
+            f32,
+            current.astype(np.float32),
+            target.astype(np.float32),
+            initiator=int(rng.integers(18)),
+            resistor=int(rng.integers(18)),
+            resistance=float(rng.choice([0.0, 1.0, rng.uniform()])),
+            zero_interpolation=bool(k % 4 < 2),
+        )
+        assert out.angles.dtype == jnp.float32
+        a = np.asarray(out.angles, float)
+        assert np.all(np.isfinite(a)) and np.all(a >= lo - 1e-5) and np.all(a <= hi + 1e-5)
+        reached = np.asarray(out.reached)
+        inside = np.isfinite(target) & (frac > 0.001) & (frac < 0.999)
+        assert np.all(reached[inside]) and not np.any(reached[~np.isfinite(target)])
+        assert not np.any(reached & ((frac < -0.001) | (frac > 1.001)))
+        np.testing.assert_allclose(a.sum(0)[reached], target[reached], atol=2e-4 * 5)
