@@ -1,6 +1,7 @@
 """The `diffbody` command line."""
 
 import argparse
+import dataclasses
 import math
 import os
 import sys
@@ -45,6 +46,17 @@ def _finite_float(text: str) -> float:
         value = math.nan
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"must be a finite number in metres, got {text!r}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
     return value
 
 
@@ -351,6 +363,30 @@ def _batch(args) -> int:
     return 0
 
 
+def _scale(args) -> int:
+    from ._anthropometry import scale_to
+    from ._loading import save_body
+    from ._measurements import MEASUREMENT_NAMES, measurements
+
+    _check_output("--out", args.out)
+    _check_output("--png", args.png)
+    given = {n: getattr(args, n) for n in MEASUREMENT_NAMES if getattr(args, n) is not None}
+    body = scale_to(None, given, sex=args.sex)
+    body = dataclasses.replace(body, name=args.name or f"{args.sex}-scaled")
+    path = save_body(body, args.out)
+    print(f"wrote {path}" + (f" and {path.stem}.spine.json" if body.spine else ""))
+    print("measurement                      value  (given *)")
+    for name, value in measurements(body).items():
+        unit = "kg" if name == "weightkg" else "m"
+        print(f"  {name:<30} {value:8.4f} {unit}{' *' if name in given else ''}")
+    if args.png:
+        from ._render import render
+
+        render(body, body.rest_pose(), args.png, ["front", "left"], title=f"diffbody {body.name}")
+        print(f"wrote {args.png}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="diffbody", description="Differentiable kinematics of sphere-skinned bodies."
@@ -407,8 +443,25 @@ def main(argv: list[str] | None = None) -> int:
     solver_args(p)
     p.set_defaults(run=_batch)
 
+    p = sub.add_parser(
+        "scale",
+        help="scale the default body to measurements (metres, weight in kg)",
+        description="Measurements not given follow the ANSUR II population given those that are.",
+    )
+    p.add_argument("--sex", required=True, choices=["male", "female"])
+    p.add_argument("--out", required=True, help="body JSON to write (data/SCHEMA.md)")
+    p.add_argument("--png", default=None, help="PNG of the scaled body to write")
+    p.add_argument("--name", default=None, help="the body's name in the file")
+    p.add_argument("--weight", dest="weightkg", type=_positive_float, help="kg")
+    from ._measurements import MEASUREMENTS
+
+    for name, m in MEASUREMENTS.items():
+        if name != "weightkg":
+            p.add_argument(f"--{name}", type=_positive_float, metavar="M", help=m.definition)
+    p.set_defaults(run=_scale)
+
     args = parser.parse_args(argv)
-    if argv is None and args.command in ("reach", "batch"):
+    if argv is None and args.command in ("reach", "batch", "scale"):
         keep_compiled()
     try:
         return args.run(args)
