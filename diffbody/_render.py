@@ -1,6 +1,7 @@
 """Pictures of the sphere body: shaded spheres drawn back to front, like seed 000's
 displays, with matplotlib (orthographic views)."""
 
+import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -77,7 +78,9 @@ def draw(
     from matplotlib.collections import PatchCollection
     from matplotlib.patches import Circle
 
-    fk = _forward_jit(body, pose)
+    # The names are static fields but no input of the kinematics: without them, bodies of
+    # one structure (scaled ones, say) share the compiled forward.
+    fk = _forward_jit(dataclasses.replace(body, name="", source=""), pose)
     centers = np.asarray(fk.sphere_centers, dtype=float)
     radii = np.asarray(fk.sphere_radii, dtype=float)
     to_camera, right, up, label = _camera(view)

@@ -201,3 +201,16 @@ def test_scaling_keeps_symmetry_and_masses(male50):
     c = np.asarray(fk.sphere_centers)
     mirrored = c * np.array([1, -1, 1])
     assert np.abs(np.sort(c, axis=0) - np.sort(mirrored, axis=0)).max() < 1e-12
+
+
+def test_the_scale_command(tmp_path, capsys):
+    from diffbody._cli import main
+
+    out = tmp_path / "person.json"
+    argv = ["scale", "--sex", "female", "--stature", "1.65", "--weight", "60", "--out", str(out)]
+    assert main(argv) == 0
+    assert "stature                          1.6500 m *" in capsys.readouterr().out
+    body = db.load_body(out)
+    assert db.measurements(body, ("stature",))["stature"] == pytest.approx(1.65, abs=1e-4)
+    assert main(argv[:4] + ["1650"] + argv[5:]) == 2  # millimetres for metres
+    assert "millimetres" in capsys.readouterr().err
