@@ -95,26 +95,7 @@ def main() -> None:
     print(f"dtype: {'float64' if args.x64 else 'float32'}")
     goals = []
 
-    print("\nheld-out accuracy (prior on even rows, odd rows scaled), MAE in mm")
-    print(f"  {'sex':<7}{'inputs':<8}{'diffbody':>9}{'uniform':>9}{'linear':>9}{'reproduced':>12}")
-    for known, target in ((FIVE[:2], 12.5), (FIVE, 9.0)):
-        for sex in SEXES:
-            r = held_out(db, sex, known)
-            print(
-                f"  {sex:<7}{len(known):<8}{r['diffbody']:9.2f}{r['uniform']:9.2f}"
-                f"{r['linear']:9.2f}{r['reproduced']:12.1%}"
-            )
-            goals.append(
-                goal(
-                    f"held-out MAE, {sex}, {len(known)} inputs (linear floor {r['linear']:.1f} mm)",
-                    r["diffbody"],
-                    target,
-                    fmt=".2f",
-                    unit=" mm",
-                    op="<=",
-                )
-            )
-
+    # The population first: its first call compiles from cold.
     for known in (FIVE[:2], FIVE):
         compile_s, run_s, reproduced = population(db, known)
         print(
@@ -134,6 +115,26 @@ def main() -> None:
                 success=reproduced,
             )
         )
+
+    print("\nheld-out accuracy (prior on even rows, odd rows scaled), MAE in mm")
+    print(f"  {'sex':<7}{'inputs':<8}{'diffbody':>9}{'uniform':>9}{'linear':>9}{'reproduced':>12}")
+    for known, target in ((FIVE[:2], 12.5), (FIVE, 9.0)):
+        for sex in SEXES:
+            r = held_out(db, sex, known)
+            print(
+                f"  {sex:<7}{len(known):<8}{r['diffbody']:9.2f}{r['uniform']:9.2f}"
+                f"{r['linear']:9.2f}{r['reproduced']:12.1%}"
+            )
+            goals.append(
+                goal(
+                    f"held-out MAE, {sex}, {len(known)} inputs (linear floor {r['linear']:.1f} mm)",
+                    r["diffbody"],
+                    target,
+                    fmt=".2f",
+                    unit=" mm",
+                    op="<=",
+                )
+            )
 
     if not args.skip_clouds:
         from _sphere_cloud import sphere_cloud_figures

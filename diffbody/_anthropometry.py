@@ -158,8 +158,11 @@ def _solve_people(template: Body, given, target, whiten, chunk: int, bar=None) -
     ones, a conditioning float32 cannot carry to the 1e-5 the given values are held to (in
     float32 a tenth of the people missed a given value by over a millimetre)."""
     with jax.enable_x64(True):
+        # Names are static but no input of the measurements: without them every body of
+        # one structure (both sexes, any scaled body) shares the compiled functions.
         template = jax.tree.map(
-            lambda x: x.astype(jnp.float64) if eqx.is_inexact_array(x) else x, template
+            lambda x: x.astype(jnp.float64) if eqx.is_inexact_array(x) else x,
+            dataclasses.replace(template, name="", source=""),
         )
         target = np.atleast_2d(target)
         ones = jnp.ones(2 * N_GROUPS)
