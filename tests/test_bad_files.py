@@ -11,7 +11,13 @@ from bodies import mini_doc
 import diffbody as db
 from diffbody._loading import data_file
 
-MISSING = object()  # delete the field
+
+class _Missing:
+    def __repr__(self):  # a stable test id: pytest-xdist workers must collect the same ids
+        return "MISSING"
+
+
+MISSING = _Missing()  # delete the field
 
 
 class Raw:
