@@ -70,8 +70,6 @@ def test_implicit_gradient_of_the_reach_with_respect_to_the_target(male50, palm0
     target is reached, the reached point follows the target one to one, so the Jacobian is
     I, up to the light pull toward init (1e-6 per unit, here about 1e-4 off I: the
     stretched arm's smallest singular values are ~0.1)."""
-    import jax
-
     palm = male50.feature_index("left_hand.palm")
 
     def reached(t):
@@ -79,11 +77,14 @@ def test_implicit_gradient_of_the_reach_with_respect_to_the_target(male50, palm0
         out = db.solve_reach(male50, target, segments=ARM, starts=1)
         return db.forward(male50, out.pose).feature_points[palm]
 
-    J = jax.jacrev(reached)(jnp.asarray(palm0 + [0.25, 0.1, 0.35]))
+    # One compiled derivative (the solve, its implicit derivative and their transpose in one
+    # XLA program) instead of hundreds of small ones run op by op.
+    jac = jax.jit(jax.jacrev(reached))
+    J = jac(jnp.asarray(palm0 + [0.25, 0.1, 0.35]))
     np.testing.assert_allclose(J, np.eye(3), atol=1e-3)
     # Out of reach the arm ends straight, a singular posture: the derivatives stay finite
-    # (same shapes: the compiled solve is reused).
-    J_far = jax.jacrev(reached)(jnp.asarray(palm0 + [2.0, 0.0, 0.0]))
+    # (same shapes: the compiled derivative is reused).
+    J_far = jac(jnp.asarray(palm0 + [2.0, 0.0, 0.0]))
     assert np.all(np.isfinite(J_far))
 
 
@@ -210,11 +211,16 @@ def test_implicit_gradient_with_respect_to_a_dimension_matches_finite_difference
         out = db.solve_reach(
             body, targets, init=true, segments=ARM, starts=1, max_steps=200, **TIGHT
         )
-        return db.swing_vector(body, out.pose.angles)[idx]
+        swing = db.swing_vector(body, out.pose.angles)[idx]
+        return swing, swing
 
-    J = jax.jacfwd(solved_swing)(0.0)
+    # One compiled program gives the solved swing (the aux output: the solve's own answer,
+    # which the implicit derivative passes through unchanged) and its derivative, so the
+    # finite differences' two solves reuse the derivative's compiled solve.
+    swing_and_derivative = jax.jit(jax.jacfwd(solved_swing, has_aux=True))
+    J, _ = swing_and_derivative(0.0)
     h = 1e-4
-    fd = (solved_swing(h) - solved_swing(-h)) / (2 * h)
+    fd = (swing_and_derivative(h)[1] - swing_and_derivative(-h)[1]) / (2 * h)
     assert float(jnp.max(jnp.abs(J))) > 0.1  # the answer moves
     np.testing.assert_allclose(J, fd, atol=2e-3)
 
