@@ -362,6 +362,11 @@ def _fit_names(fit) -> tuple[str, ...]:
     return fit
 
 
+def _entry(mask: np.ndarray) -> tuple[int, ...]:
+    """The index of the first True entry, as plain ints (for messages)."""
+    return tuple(int(i) for i in np.argwhere(mask)[0])
+
+
 def _measured(centers, radii, batch: bool) -> np.ndarray:
     """(..., m, 4) centre and radius per measured sphere, checked on the host."""
     lead = "(b, m" if batch else "(m"
@@ -374,11 +379,10 @@ def _measured(centers, radii, batch: bool) -> np.ndarray:
     if c.shape[-2] == 0:
         raise ValueError("centers: the cloud holds no sphere; give at least one")
     for name, a in (("centers", c), ("radii", r)):
-        bad = np.argwhere(~np.isfinite(a))
-        if len(bad):
-            raise ValueError(f"{name}: entry {tuple(bad[0])} is not finite; give numbers in m")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{name}: entry {_entry(~np.isfinite(a))} is not finite; give m")
     if np.any(r < 0):
-        raise ValueError(f"radii: entry {tuple(np.argwhere(r < 0)[0])} is negative; give >= 0 m")
+        raise ValueError(f"radii: entry {_entry(r < 0)} is negative; give >= 0 m")
     return np.concatenate([c, r[..., None]], axis=-1)
 
 
@@ -396,10 +400,10 @@ def _matches(correspondences, shape: tuple[int, ...], n_spheres: int) -> np.ndar
         k = np.broadcast_to(k, shape)
     if k.shape != shape:
         raise ValueError(f"correspondences: expected shape {shape}, got {k.shape}")
-    bad = np.argwhere((k < -1) | (k >= n_spheres))
-    if len(bad):
+    bad = (k < -1) | (k >= n_spheres)
+    if np.any(bad):
         raise ValueError(
-            f"correspondences: entry {tuple(bad[0])} = {k[tuple(bad[0])]} is not a model "
+            f"correspondences: entry {_entry(bad)} = {k[_entry(bad)]} is not a model "
             f"sphere; give 0..{n_spheres - 1}, or -1 for an unmatched (outlier) sphere"
         )
     if np.any(np.all(k < 0, axis=-1)):
@@ -445,16 +449,17 @@ def _result(body: Body, template: Body, out) -> SphereFit:
 
 def fit_spheres(
     body: Body,
-    centers: Float[ArrayLike, "m 3"],
-    radii: Float[ArrayLike, " m"],
+    centers: ArrayLike,
+    radii: ArrayLike,
     *,
-    correspondences: Int[ArrayLike, " m"] | None = None,
+    correspondences: ArrayLike | None = None,
     fit: tuple[str, ...] = FIT_NAMES,
     init: Pose | None = None,
 ) -> SphereFit:
     """Fit a posture and the body's dimensions to a measured sphere cloud (DESIGN 7).
 
-    centers (m, 3) and radii (m,), in m: the measured spheres, any number, outliers allowed.
+    centers (m, 3) and radii (m,), in m (checked on the host, so that a wrong shape gets
+    a message, not a type error): the measured spheres, any number, outliers allowed.
     correspondences: (m,) the model sphere (index into `body`'s spheres) each measured sphere
     is, -1 for none (an outlier); None when unknown (annealed soft assignment, module
     docstring). fit: which unknowns move, a subset of ("pose", "lengths", "radii"):
@@ -479,10 +484,10 @@ def fit_spheres(
 
 def fit_spheres_batch(
     body: Body,
-    centers: Float[ArrayLike, "b m 3"],
-    radii: Float[ArrayLike, "b m"],
+    centers: ArrayLike,
+    radii: ArrayLike,
     *,
-    correspondences: Int[ArrayLike, "*b m"] | None = None,
+    correspondences: ArrayLike | None = None,
     fit: tuple[str, ...] = FIT_NAMES,
     init: Pose | None = None,
     chunk_size: int = 256,

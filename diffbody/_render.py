@@ -122,6 +122,24 @@ def draw(
         s.set_visible(False)
 
 
+def draw_cloud(
+    ax, centers: np.ndarray, radii: np.ndarray, view: View = "front", inliers=None
+) -> None:
+    """Draw a measured sphere cloud over a `draw`n body: each sphere as an outline in the
+    same projection, outliers (`inliers` False) in red."""
+    from matplotlib.collections import PatchCollection
+    from matplotlib.patches import Circle
+
+    centers, radii = np.asarray(centers, float), np.asarray(radii, float)
+    _, right, up, _ = _camera(view)
+    xy = np.stack([centers @ right, centers @ up], axis=-1)
+    inliers = np.ones(len(radii), bool) if inliers is None else np.asarray(inliers, bool)
+    color = np.where(inliers[:, None], [[0.1, 0.3, 0.9, 0.8]], [[0.9, 0.1, 0.1, 0.9]])
+    circles = [Circle(p, r) for p, r in zip(xy, radii)]
+    ax.add_collection(PatchCollection(circles, facecolor="none", edgecolor=color, lw=0.5))
+    ax.autoscale_view()
+
+
 def render(
     body: Body,
     pose: Pose,
@@ -132,6 +150,7 @@ def render(
     skeleton: bool = False,
     dpi: int = 120,
     title: str | None = None,
+    cloud: tuple | None = None,
 ) -> Path:
     """Write a PNG of the shaded sphere body in `pose`.
 
@@ -143,6 +162,8 @@ def render(
             or a list of these for several panels side by side.
         features: mark the named feature points; skeleton: draw the segment axes.
         dpi: resolution; title: a caption over the figure.
+        cloud: (centers (m, 3), radii (m,)[, inliers (m,)]) of a measured sphere cloud to
+            draw over the body (`draw_cloud`).
 
     Returns:
         The path written.
@@ -161,6 +182,8 @@ def render(
     fig, axes = plt.subplots(1, len(views), figsize=(3.2 * len(views), 5.2), squeeze=False)
     for ax, v in zip(axes[0], views):
         draw(ax, body, pose, v, features=features, skeleton=skeleton)
+        if cloud is not None:
+            draw_cloud(ax, *cloud, view=v)
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
