@@ -36,7 +36,7 @@ from ._orientation import (
 from ._posture import apply_standard_orientation, pose_from_joint_positions
 from ._prior import PopulationPrior
 from ._reach import ReachResult, ReachStatus, solve_reach
-from ._render import draw, render
+from ._render import draw, draw_cloud, render
 from ._scaling import SCALE_GROUPS, scale_body
 from ._spine import BendResult, bend_pose, bendspine, movespine, spine_angles, with_spine_angles
 from ._targets import Target
@@ -117,5 +117,6 @@ __all__ = [
     "urdf_joint_values",
     # Rendering
     "draw",
+    "draw_cloud",
     "render",
 ]
