@@ -192,8 +192,8 @@ def model_spheres(start: Start, lay: FitLayout, z: Array) -> Float[Array, "n_sph
 class Cloud(eqx.Module):
     """One measured cloud: one compiled fit serves every cloud of a size."""
 
-    measured: Float[Array, "m 4"]  # centre and radius (m) of each measured sphere
-    match: Int[Array, " m"]  # its model sphere, -1 for none (unused when not `known`)
+    measured: Float[Array, "*b m 4"]  # centre and radius (m) of each measured sphere
+    match: Int[Array, "*b m"]  # its model sphere, -1 for none (unused when not `known`)
     known: bool = eqx.field(static=True)  # whether `match` holds (else soft assignment)
 
 
@@ -281,7 +281,7 @@ def schedule(lay: FitLayout, known: bool, dtype) -> tuple[Array, ...]:
     """Per stage: T (m), c (m), the pull per unknown, the solver's tolerance."""
     T, c, moves, tight = (np.asarray(col) for col in zip(*(KNOWN_STAGES if known else STAGES)))
     pull = np.where(lay.stage_of()[None, :] <= moves[:, None], PULL, STIFF)
-    tol = np.where(tight, 1e-10 if dtype == jnp.float64 else 1e-6, 1e-4)
+    tol = np.where(tight, 1e-10 if dtype == jnp.float64 else 1e-5, 1e-4)
     return tuple(jnp.asarray(a, dtype) for a in (T, c, pull, tol))
 
 
@@ -434,9 +434,11 @@ def _anonymous(body: Body) -> Body:
 def _result(body: Body, template: Body, out) -> SphereFit:
     pose, log_axial, log_radial, distances, status, steps = out
     fitted = jax.vmap(scaled, in_axes=(None, 0, 0)) if log_axial.ndim == 2 else scaled
+    # Named before scaling: a batch of bodies is no valid argument of Body's constructor.
     name = dict(name=f"{body.name}-fitted", source="diffbody.fit_spheres")
+    template = dataclasses.replace(template, **name)
     return SphereFit(
-        body=dataclasses.replace(fitted(template, log_axial, log_radial), **name),
+        body=fitted(template, log_axial, log_radial),
         pose=pose,
         axial=jnp.exp(log_axial),
         radial=jnp.exp(log_radial),

@@ -183,7 +183,7 @@ def render(
     for ax, v in zip(axes[0], views):
         draw(ax, body, pose, v, features=features, skeleton=skeleton)
         if cloud is not None:
-            draw_cloud(ax, *cloud, view=v)
+            draw_cloud(ax, cloud[0], cloud[1], v, cloud[2] if len(cloud) > 2 else None)
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()

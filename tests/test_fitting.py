@@ -32,7 +32,7 @@ def test_exact_clouds_with_correspondences_give_back_the_scale_factors(male50):
     for seed in (1, 2):
         key = jax.random.PRNGKey(seed)
         person, axial, radial = scaled_person(male50, key)
-        pose = db.sample_pose(male50, jax.random.fold_in(key, 1), spread=0.3)
+        pose = db.sample_pose(male50, jax.random.fold_in(key, 1), spread=0.15)
         centers, radii, match = db.synthetic_cloud(person, pose, jax.random.fold_in(key, 2))
         clouds.append((centers, radii))
         truths.append((axial, radial))
@@ -54,7 +54,7 @@ def test_the_fit_command_on_a_noisy_cloud_with_outliers(male50, tmp_path, capsys
     the outliers, and writes a body that loads, its pose and a picture."""
     key = jax.random.PRNGKey(7)
     person, _, _ = scaled_person(male50, key)
-    pose = db.sample_pose(male50, jax.random.fold_in(key, 1), spread=0.3)
+    pose = db.sample_pose(male50, jax.random.fold_in(key, 1), spread=0.15)
     centers, radii, match = db.synthetic_cloud(
         person, pose, jax.random.fold_in(key, 2), noise=0.005, outliers=0.1
     )
