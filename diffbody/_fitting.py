@@ -112,8 +112,8 @@ class SphereFit(eqx.Module):
         return self.status == FitStatus.CONVERGED
 
     def item(self, i: int) -> "SphereFit":
-        """Cloud i of a batch."""
-        return jax.tree.map(lambda a: a[i] if eqx.is_array(a) else a, self)
+        """Cloud i of a batch, as JAX arrays (ready for `forward`, `render`, ...)."""
+        return jax.tree.map(lambda a: jnp.asarray(a[i]) if eqx.is_array(a) else a, self)
 
 
 # --- unknowns ------------------------------------------------------------------------------
