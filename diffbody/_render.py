@@ -137,7 +137,11 @@ def draw_cloud(
     color = np.where(inliers[:, None], [[0.1, 0.3, 0.9, 0.8]], [[0.9, 0.1, 0.1, 0.9]])
     circles = [Circle(p, r) for p, r in zip(xy, radii)]
     ax.add_collection(PatchCollection(circles, facecolor="none", edgecolor=color, lw=0.5))
-    ax.autoscale_view()
+    # Grow the body's limits (set by `draw`) to the whole cloud.
+    lo, hi = (xy - radii[:, None]).min(0) - 0.05, (xy + radii[:, None]).max(0) + 0.05
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    ax.set_xlim(min(x0, lo[0]), max(x1, hi[0]))
+    ax.set_ylim(min(y0, lo[1]), max(y1, hi[1]))
 
 
 def render(
