@@ -8,15 +8,9 @@ from ._anthropometry import (
 )
 from ._batch import solve_reach_batch
 from ._body import Body, Pose, Spine
+from ._clouds import sample_pose, synthetic_cloud
 from ._export import export_mjcf, export_urdf, mujoco_joint_names, mujoco_qpos, urdf_joint_values
-from ._fitting import (
-    FitStatus,
-    SphereFit,
-    fit_spheres,
-    fit_spheres_batch,
-    sample_pose,
-    synthetic_cloud,
-)
+from ._fitting import FitStatus, SphereFit, fit_spheres, fit_spheres_batch
 from ._kinematics import Kinematics, forward
 from ._limits import STOP_COLUMNS, angles_from_swing, stop_violation, swing_vector, within_limits
 from ._loading import BodyFileError, load_body, load_spine, save_body

@@ -44,10 +44,11 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._batch import _Progress
 from ._body import Body, Pose
-from ._kinematics import forward, place_on_segments
+from ._clouds import check_correspondences, check_spheres
+from ._kinematics import place_on_segments
 from ._problem import Problem, _global_order, make_problem
 from ._scaling import SCALE_GROUPS, per_segment, scale_body
-from ._unknowns import Layout, make_layout
+from ._unknowns import Layout, whole_tree_layout
 
 FIT_NAMES = ("pose", "lengths", "radii")
 N_GROUPS = len(SCALE_GROUPS)
@@ -148,9 +149,7 @@ class FitLayout:
 
 def fit_layout(body: Body, fit: tuple[str, ...]) -> FitLayout:
     """The whole tree free within its limits, the spine as its target, the root free."""
-    everything = [body.n_joints + len(body.feature_names)]  # the center of gravity: all
-    pose = make_layout(body, everything, [], range(body.n_segments), spine=True, root=True)
-    return FitLayout(pose=pose, fit=tuple(n for n in FIT_NAMES if n in fit))
+    return FitLayout(pose=whole_tree_layout(body), fit=tuple(n for n in FIT_NAMES if n in fit))
 
 
 class Start(eqx.Module):
@@ -208,18 +207,20 @@ class Pairs(eqx.Module):
     weight: Float[Array, " n_sph"]
 
 
-def softassign(
-    measured: Float[Array, "m 4"], model: Float[Array, "n 4"], T: Array, c: Array
-) -> Float[Array, "m n"]:
+def squared_distances(measured: Array, model: Array) -> Float[Array, "m n"]:
+    """(m, n) m^2: between every measured and every model sphere in (centre, radius) space."""
+    return jnp.sum((measured[:, None, :] - model[None]) ** 2, axis=-1)
+
+
+def softassign(d2: Float[Array, "m n"], T: Array, c: Array) -> Float[Array, "m n"]:
     """The soft one-to-one assignment of measured to model spheres (Gold & Rangarajan's
     softassign): exp(-d^2 / 2 T^2) made doubly stochastic by `SINKHORN` rounds of row and
     column normalisation in the log domain, with a slack row and column of value
     exp(-c^2 / 2 T^2), so that a sphere farther than c from every partner (an outlier, or a
     model sphere nothing was measured of) goes to the slack. One-to-one, unlike the
     nearest sphere, it cannot slide a chain of spheres along itself (a foot fitted too
-    long, every toe sphere on its neighbour's place)."""
-    m, n = measured.shape[0], model.shape[0]
-    d2 = jnp.sum((measured[:, None, :] - model[None]) ** 2, axis=-1)
+    long, every toe sphere on its neighbour's place). d2: `squared_distances`."""
+    m, n = d2.shape
     slack = -(c**2) / (2 * T**2)
     L = jnp.pad(-d2 / (2 * T**2), ((0, 1), (0, 1)), constant_values=slack)
     L = L.at[m, n].set(-jnp.inf)  # the slacks do not match each other
@@ -241,18 +242,19 @@ def pairs_at(cloud: Cloud, model: Array, T: Array, c: Array) -> Pairs:
     scale is c or three times the median distance of the measured spheres to their
     partners (matched, or nearest), whichever is larger, so that a far start (a limb 50 cm
     from its place) is not taken for outliers: as the fit closes in, c rules."""
-    median = jnp.median(residual_distances(cloud, model))
+    d2_all = squared_distances(cloud.measured, model)
+    median = jnp.median(residual_distances(cloud, d2_all))
     c = jnp.maximum(c, C_MEDIAN * median)
     # No colder than the noise: the median (centre, radius) distance of a 4-vector of
     # Gaussian noise of deviation s per number is 1.83 s.
     T = jnp.maximum(T, median / 1.83)
     if cloud.known:
         matched = jnp.maximum(cloud.match, 0)
-        d2 = jnp.sum((cloud.measured - model[matched]) ** 2, axis=-1)
+        d2 = jnp.take_along_axis(d2_all, matched[:, None], axis=1)[:, 0]
         P = jax.nn.one_hot(matched, model.shape[0], dtype=model.dtype)
         P = P * jnp.where(cloud.match >= 0, _robust(d2, c), 0.0)[:, None]
     else:
-        P = softassign(cloud.measured, model, T, c)
+        P = softassign(d2_all, T, c)
     weight = jnp.sum(P, axis=0)
     toward = (P.T @ cloud.measured) / jnp.maximum(weight, 1e-30)[:, None]
     return Pairs(toward, weight)
@@ -267,16 +269,14 @@ def stage_residuals(z: Array, args) -> Array:
     return jnp.concatenate([e.ravel(), pull * (z - z0)])
 
 
-def residual_distances(cloud: Cloud, model: Array) -> Float[Array, " m"]:
+def residual_distances(cloud: Cloud, d2: Float[Array, "m n"]) -> Float[Array, " m"]:
     """(m,) m: each measured sphere's (centre, radius) distance to its matched model sphere,
-    to the nearest one where none is known."""
+    to the nearest one where none is known. d2: `squared_distances`."""
+    nearest = jnp.min(d2, axis=-1)
     if cloud.known:
-        matched = model[jnp.maximum(cloud.match, 0)]
-        d2 = jnp.sum((cloud.measured - matched) ** 2, axis=-1)
-        nearest = jnp.min(jnp.sum((cloud.measured[:, None] - model[None]) ** 2, -1), -1)
-        return jnp.sqrt(jnp.where(cloud.match >= 0, d2, nearest))
-    d2 = jnp.sum((cloud.measured[:, None, :] - model[None]) ** 2, axis=-1)
-    return jnp.sqrt(jnp.min(d2, axis=-1))
+        matched = jnp.take_along_axis(d2, jnp.maximum(cloud.match, 0)[:, None], axis=1)[:, 0]
+        nearest = jnp.where(cloud.match >= 0, matched, nearest)
+    return jnp.sqrt(nearest)
 
 
 # --- the fit -------------------------------------------------------------------------------
@@ -347,7 +347,8 @@ def fit_cloud(template: Body, lay: FitLayout, init: Pose, cloud: Cloud, align: A
         ok, jnp.where(done, FitStatus.CONVERGED, FitStatus.NOT_CONVERGED), FitStatus.FAILED
     )
     x, log_axial, log_radial = lay.split(z, start)
-    distances = residual_distances(cloud, model_spheres(start, lay, z))
+    model = model_spheres(start, lay, z)
+    distances = residual_distances(cloud, squared_distances(cloud.measured, model))
     pose = start.problem.pose(x, init)
     return pose, log_axial, log_radial, distances, status, steps
 
@@ -369,58 +370,14 @@ def _fit_names(fit) -> tuple[str, ...]:
     return fit
 
 
-def _entry(mask: np.ndarray) -> tuple[int, ...]:
-    """The index of the first True entry, as plain ints (for messages)."""
-    return tuple(int(i) for i in np.argwhere(mask)[0])
-
-
-def _measured(centers, radii, batch: bool) -> np.ndarray:
-    """(..., m, 4) centre and radius per measured sphere, checked on the host."""
-    lead = "(b, m" if batch else "(m"
-    c = np.asarray(centers, dtype=float)
-    r = np.asarray(radii, dtype=float)
-    if c.ndim != (3 if batch else 2) or c.shape[-1] != 3:
-        raise ValueError(f"centers: expected shape {lead}, 3) in m, got {c.shape}")
-    if r.shape != c.shape[:-1]:
-        raise ValueError(f"radii: expected shape {lead}) to match centers, got {r.shape}")
-    if c.shape[-2] == 0:
-        raise ValueError("centers: the cloud holds no sphere; give at least one")
-    for name, a in (("centers", c), ("radii", r)):
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"{name}: entry {_entry(~np.isfinite(a))} is not finite; give m")
-    if np.any(r < 0):
-        raise ValueError(f"radii: entry {_entry(r < 0)} is negative; give >= 0 m")
-    return np.concatenate([c, r[..., None]], axis=-1)
-
-
-def _matches(correspondences, shape: tuple[int, ...], n_spheres: int) -> np.ndarray | None:
-    """The correspondences (shape) as int32, checked; None when unknown."""
-    if correspondences is None:
-        return None
-    k = np.asarray(correspondences)
-    if not np.issubdtype(k.dtype, np.integer):
-        raise ValueError(
-            "correspondences: expected integers (a model sphere index per measured sphere, "
-            f"-1 for none), got {k.dtype}"
-        )
-    if k.shape == shape[-1:]:
-        k = np.broadcast_to(k, shape)
-    if k.shape != shape:
-        raise ValueError(f"correspondences: expected shape {shape}, got {k.shape}")
-    bad = (k < -1) | (k >= n_spheres)
-    if np.any(bad):
-        raise ValueError(
-            f"correspondences: entry {_entry(bad)} = {k[_entry(bad)]} is not a model "
-            f"sphere; give 0..{n_spheres - 1}, or -1 for an unmatched (outlier) sphere"
-        )
-    if np.any(np.all(k < 0, axis=-1)):
-        raise ValueError("correspondences: a cloud has no matched sphere; match at least one")
-    return k.astype(np.int32)
-
-
-def _init(body: Body, init: Pose | None) -> Pose:
-    """The start's pose, with its spine as a target (the fit's spine unknowns)."""
-    return body.rest_pose() if init is None else init
+def _prepare(body: Body, centers, radii, correspondences, fit, init: Pose | None, batch: bool):
+    """The host's part of a fit, every argument checked: (template, layout, start pose,
+    measured spheres (..., m, 4), correspondences or None)."""
+    layout = fit_layout(body, _fit_names(fit))
+    measured = check_spheres(centers, radii, batch=batch)
+    match = check_correspondences(correspondences, measured.shape[:-1], len(body.sphere_radii))
+    start = body.rest_pose() if init is None else init
+    return _anonymous(body), layout, start, measured, match
 
 
 def _cloud(dtype, measured: np.ndarray, match: np.ndarray | None) -> Cloud:
@@ -481,13 +438,11 @@ def fit_spheres(
     Returns a `SphereFit`: the scaled body, the pose (its spine as a Bendspine target),
     the scale factors, each measured sphere's residual distance and inlier flag, a status.
     """
-    fit = _fit_names(fit)
-    measured = _measured(centers, radii, batch=False)
-    match = _matches(correspondences, measured.shape[:1], len(body.sphere_radii))
-    template = _anonymous(body)
+    template, lay, start, measured, match = _prepare(
+        body, centers, radii, correspondences, fit, init, batch=False
+    )
     cloud = _cloud(template.lengths.dtype, measured, match)
-    align = jnp.asarray(init is None)
-    out = _fit_jit(template, fit_layout(body, fit), _init(body, init), cloud, align)
+    out = _fit_jit(template, lay, start, cloud, jnp.asarray(init is None))
     return _result(body, template, out)
 
 
@@ -509,13 +464,11 @@ def fit_spheres_batch(
     one pose for every cloud. Returns a `SphereFit` with a leading batch axis (NumPy
     arrays); a cloud whose fit fails has status FAILED and does not stop the others.
     """
-    fit = _fit_names(fit)
     if not (isinstance(chunk_size, int) and chunk_size >= 1):
         raise ValueError(f"chunk_size: expected an integer >= 1, got {chunk_size!r}")
-    measured = _measured(centers, radii, batch=True)
-    match = _matches(correspondences, measured.shape[:2], len(body.sphere_radii))
-    template = _anonymous(body)
-    lay, start = fit_layout(body, fit), _init(body, init)
+    template, lay, start, measured, match = _prepare(
+        body, centers, radii, correspondences, fit, init, batch=True
+    )
     total = measured.shape[0]
     chunk = min(chunk_size, total)
     bar = _Progress(total, progress, "fit")
@@ -531,45 +484,3 @@ def fit_spheres_batch(
     out = jax.tree.map(lambda *a: np.concatenate(a), *outs)
     result = _result(body, template, out)
     return jax.tree.map(lambda a: np.asarray(a) if eqx.is_array(a) else a, result)
-
-
-# --- synthetic clouds ----------------------------------------------------------------------
-def sample_pose(body: Body, key: Array, spread: float = 0.5, turn: float = 0.5) -> Pose:
-    """A random posture in the fit's pose space: every free joint component at
-    mid + half sin(u) of its range with u ~ N(u_rest, spread^2) (the reach core's bounded
-    maps: every limit holds), the spine as a Bendspine target drawn the same way, the whole
-    body turned about the vertical by up to +-`turn` rad and shifted up to 10 cm. For
-    tests, benchmarks and demonstrations of `fit_spheres`."""
-    lay = fit_layout(body, ("pose",)).pose
-    rest = body.rest_pose()
-    problem = make_problem(body, lay, rest)
-    k_u, k_turn, k_shift = jax.random.split(key, 3)
-    x = problem.x0 + spread * jax.random.normal(k_u, problem.x0.shape, problem.x0.dtype)
-    yaw = jax.random.uniform(k_turn, (), problem.x0.dtype, -turn, turn)
-    shift = jax.random.uniform(k_shift, (3,), problem.x0.dtype, -0.1, 0.1).at[2].set(0.0)
-    x = x.at[-6:].set(jnp.concatenate([shift, jnp.asarray([0.0, 0.0, 1.0]) * yaw]))
-    return problem.pose(x, rest)
-
-
-def synthetic_cloud(
-    body: Body, pose: Pose, key: Array, noise: float = 0.0, outliers: float = 0.0
-) -> tuple[Array, Array, Array]:
-    """A measured cloud of `body` in `pose`: (centers (n_sph, 3) m, radii (n_sph,) m, the
-    correspondences (n_sph,)). Every number gets Gaussian noise of `noise` m (radii kept
-    >= 0); a fraction `outliers` of the spheres is replaced by spheres drawn uniformly in
-    the body's bounding box grown by 10 cm, radii 1-8 cm, with correspondence -1."""
-    kin = forward(body, pose)
-    centers, radii = kin.sphere_centers, kin.sphere_radii
-    n = radii.shape[0]
-    k_noise, k_pick, k_where, k_size = jax.random.split(key, 4)
-    e = noise * jax.random.normal(k_noise, (n, 4), centers.dtype)
-    centers, radii = centers + e[:, :3], jnp.abs(radii + e[:, 3])
-    bad = jax.random.permutation(k_pick, n) < round(outliers * n)
-    lo, hi = jnp.min(centers, axis=0) - 0.1, jnp.max(centers, axis=0) + 0.1
-    where = jax.random.uniform(k_where, (n, 3), centers.dtype, lo, hi)
-    size = jax.random.uniform(k_size, (n,), centers.dtype, 0.01, 0.08)
-    return (
-        jnp.where(bad[:, None], where, centers),
-        jnp.where(bad, size, radii),
-        jnp.where(bad, -1, jnp.arange(n)),
-    )

@@ -167,5 +167,12 @@ def make_layout(
     )
 
 
+def whole_tree_layout(body: Body) -> Layout:
+    """Every segment free within its limits, the spine as its target, the root placement
+    free: the whole tree walked (the center of gravity as the effector asks for it)."""
+    everything = [body.n_joints + len(body.feature_names)]
+    return make_layout(body, everything, [], range(body.n_segments), spine=True, root=True)
+
+
 def _moves_above(body: Body, seg: int, moving: set[int]) -> bool:
     return any(s in moving for s in path_to_top(body, seg))

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 import diffbody as db
 from diffbody._cli import main
-from diffbody._fitting import softassign
+from diffbody._fitting import softassign, squared_distances
 from diffbody._scaling import per_segment
 
 
@@ -113,7 +113,7 @@ def test_bad_cloud_files_are_refused(tmp_path, capsys):
     assert f"{bad}: radii: entry (0,) is negative" in capsys.readouterr().err
 
 
-_softassign = jax.jit(softassign)
+_softassign = jax.jit(lambda x, y, T, c: softassign(squared_distances(x, y), T, c))
 
 
 @given(st.integers(0, 2**31 - 1), st.integers(3, 12))
