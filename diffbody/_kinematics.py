@@ -27,7 +27,7 @@ from ._rotations import (
     swing_rotation,
     twist_about_z,
 )
-from ._spine import bendspine
+from ._spine import bend_from_rest
 
 
 class Kinematics(eqx.Module):
@@ -99,7 +99,7 @@ def spine_deviation(body: Body, spine_target: Array) -> tuple[np.ndarray, Array,
         )
     spine = body.spine
     seg = np.asarray([body.segment_index(s) for s in spine.segment_names])
-    out = bendspine(spine, spine.rest, spine_target, initiator=spine.initiator)
+    out = bend_from_rest(spine, spine_target)
     dev = out.angles - spine.rest  # (flexion, axial, lateral) -> w_y, tau, w_x
     return seg, jnp.stack([dev[:, 2], dev[:, 0]], axis=-1), dev[:, 1]
 

@@ -472,6 +472,31 @@ def bendspine(
     return _bend_kernel(*args)
 
 
+def bend_from_rest(spine: Spine, target: Float[Array, "3"]) -> BendResult:
+    """`bendspine(spine, spine.rest, target, initiator=spine.initiator)` with every other
+    option at its default, for `forward` and the solvers. Nothing is checked: the rest
+    angles and limits were checked when the database was loaded and any target is valid. A
+    traced check would be a host callback (`eqx.error_if`), and XLA keeps no program with
+    one in its persistent cache, so every process would compile each solve anew."""
+    n = spine.n_joints
+    dtype = jnp.result_type(spine.rest.dtype, target)
+    i = jnp.asarray(spine.initiator, jnp.int32)
+    return _bend_kernel(
+        jnp.asarray(spine.lower, dtype),
+        jnp.asarray(spine.upper, dtype),
+        jnp.asarray(spine.rest, dtype),
+        jnp.asarray(spine.rest, dtype),
+        jnp.asarray(target, dtype),
+        i,
+        i,  # no resistor: resistance 0
+        jnp.zeros((), dtype),
+        jnp.asarray((0, n - 1), jnp.int32),
+        jnp.asarray(3.0, dtype),  # bendspine's default spread
+        jnp.asarray(100 * n * float(jnp.finfo(dtype).eps), dtype),  # its default tol
+        jnp.asarray(True),
+    )
+
+
 def movespine(
     spine: Spine,
     current: ArrayLike,

@@ -359,6 +359,17 @@ def test_a_pose_can_carry_a_spine_target(male50):
     )
 
 
+def test_a_spine_target_traces_no_host_callback(male50):
+    """Regression: `forward` bent the spine through the checked `bendspine`, whose traced
+    checks are host callbacks; XLA keeps no program with one in its persistent cache, so
+    every solve with the spine (the sphere-cloud fit, whole-body reach) compiled anew in
+    every process. The body is traced here as in the solvers."""
+    rest = male50.rest_pose()
+    carried = db.Pose(rest.position, rest.angles, spine_target=male50.spine.rest.sum(0))
+    text = jax.jit(db.forward).lower(male50, carried).as_text()
+    assert "callback" not in text
+
+
 def test_spine_target_needs_a_spine(tmp_path):
     from bodies import mini_doc, write
 
