@@ -15,6 +15,23 @@ from ._kinematics import Kinematics, forward
 from ._limits import STOP_COLUMNS, angles_from_swing, stop_violation, swing_vector, within_limits
 from ._loading import BodyFileError, load_body, load_spine, save_body
 from ._local_frames import bone_descriptors, local_frame, local_frames, smooth_reference
+from ._markers import (
+    LAB_AXES,
+    MarkerFileError,
+    MarkerTrial,
+    read_c3d,
+    read_markers,
+    read_trc,
+    write_trc,
+)
+from ._markerset import (
+    MarkerSet,
+    MarkerWarning,
+    load_markerset,
+    match_markers,
+    scale_offsets,
+    world_markers,
+)
 from ._measurements import MEASUREMENT_NAMES, MEASUREMENTS, measure, measurements
 from ._orientation import (
     azimuth_polar_to_inclination_azimuth,
@@ -103,6 +120,20 @@ __all__ = [
     "fit_spheres_batch",
     "sample_pose",
     "synthetic_cloud",
+    # Motion capture: marker files and marker sets
+    "LAB_AXES",
+    "MarkerFileError",
+    "MarkerTrial",
+    "read_c3d",
+    "read_markers",
+    "read_trc",
+    "write_trc",
+    "MarkerSet",
+    "MarkerWarning",
+    "load_markerset",
+    "match_markers",
+    "scale_offsets",
+    "world_markers",
     # Export
     "export_mjcf",
     "export_urdf",
