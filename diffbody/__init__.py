@@ -9,11 +9,11 @@ from ._anthropometry import (
 from ._batch import solve_reach_batch
 from ._body import Body, Pose, Spine
 from ._clouds import sample_pose, synthetic_cloud
-from ._export import export_mjcf, export_urdf, mujoco_joint_names, mujoco_qpos, urdf_joint_values
+from ._data_files import BodyFileError
 from ._fitting import FitStatus, SphereFit, fit_spheres, fit_spheres_batch
 from ._kinematics import Kinematics, forward
 from ._limits import STOP_COLUMNS, angles_from_swing, stop_violation, swing_vector, within_limits
-from ._loading import BodyFileError, load_body, load_spine, save_body
+from ._loading import load_body
 from ._local_frames import bone_descriptors, local_frame, local_frames, smooth_reference
 from ._markers import (
     LAB_AXES,
@@ -33,6 +33,7 @@ from ._markerset import (
     world_markers,
 )
 from ._measurements import MEASUREMENT_NAMES, MEASUREMENTS, measure, measurements
+from ._mjcf import export_mjcf, mujoco_joint_names, mujoco_qpos
 from ._orientation import (
     azimuth_polar_to_inclination_azimuth,
     azimuth_polar_to_vector,
@@ -48,9 +49,12 @@ from ._posture import apply_standard_orientation, pose_from_joint_positions
 from ._prior import PopulationPrior
 from ._reach import ReachResult, ReachStatus, solve_reach
 from ._render import draw, draw_cloud, render
+from ._saving import save_body
 from ._scaling import SCALE_GROUPS, scale_body
 from ._spine import BendResult, bend_pose, bendspine, movespine, spine_angles, with_spine_angles
+from ._spine_file import load_spine
 from ._targets import Target
+from ._urdf import export_urdf, urdf_joint_values
 
 __version__ = "0.1.0"
 

@@ -365,7 +365,7 @@ def _batch(args) -> int:
 
 def _scale(args) -> int:
     from ._anthropometry import scale_to
-    from ._loading import save_body
+    from ._saving import save_body
     from ._measurements import MEASUREMENT_NAMES, measurements
 
     _check_output("--out", args.out)
@@ -418,7 +418,7 @@ def _fit(args) -> int:
     import numpy as np
 
     from ._fitting import INLIER_DISTANCE, FitStatus, fit_spheres
-    from ._loading import save_body
+    from ._saving import save_body
 
     _check_output("--out", args.out)
     _check_output("--png", args.png)

@@ -1,178 +1,44 @@
-"""Loading and validating body files and spine databases (both schemas, with the physical
-ranges, in data/SCHEMA.md).
+"""Loading and validating body files (the schema, with the physical ranges, in
+data/SCHEMA.md). Spine databases are read by `_spine_file`, written with bodies by `_saving`.
 
-Every error is a `BodyFileError` naming the file, the entry, the field and what is
-expected, e.g. ``body.json: segment 'left_forearm' (segments[12]), field 'length': must lie
-in [0.0001, 10] m, got -0.2``. A file that cannot be read (missing aside) or is not UTF-8
-JSON is a `BodyFileError` naming the file too.
+Every error is a `BodyFileError` (`_data_files`) naming the file, the entry, the field and
+what is expected.
 """
 
 import dataclasses
-import json
 import math
 from collections import deque
-from importlib import resources
 from pathlib import Path
-from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ._body import CENTER_OF_GRAVITY, WHOLE_BODY, Body, Spine, rest_geometry
+from ._body import CENTER_OF_GRAVITY, WHOLE_BODY, Body, rest_geometry
+from ._data_files import BodyFileError as BodyFileError
+from ._data_files import _object as _object
+from ._data_files import _read_json, _Where, data_file
 from ._orientation import LIMBS
 from ._rotations import cross_of_axes
+from ._saving import body_document as body_document
+from ._saving import save_body as save_body
+from ._schema import (
+    DEFAULT_SWING_MAX_DEG,
+    FEATURE_FIELDS,
+    LENGTH_M,
+    LIMIT_FIELDS,
+    MASS_KG,
+    MIN_SWING_MAX_DEG,
+    OPTIONAL_LIMIT_FIELDS,
+    POSITION_M,
+    SCHEMA,
+    TOP_FIELDS,
+)
+from ._spine_file import load_spine
 
-SCHEMA = "diffbody.body/1"
-TOP_FIELDS = {"schema", "name", "description", "sources", "root_joint", "segments", "spine"}
-FEATURE_FIELDS = {"name", "direction"}
-LIMIT_FIELDS = {
-    "box": {"swing_x_deg", "swing_y_deg", "twist_deg"},
-    "cone": {"swing_max_deg", "twist_deg"},
-    "hinge": {"swing_y_deg", "twist_deg"},
-    "free": set(),
-}
-OPTIONAL_LIMIT_FIELDS = {"box": {"swing_max_deg"}}
-DEFAULT_SWING_MAX_DEG = 179.0
-SPINE_SCHEMA = "diffbody.spine/1"
-SPINE_ROTATIONS = ("flexion", "axial", "lateral")  # columns of the spine's angle arrays
-SPINE_TOP_FIELDS = {"schema", "joints", "vertebrae"}
-SPINE_OPTIONAL_FIELDS = {"sources", "angles", "description", "initiator"}
-SPINE_JOINT_FIELDS = {
-    "name",
-    "segment",
-    "rest_deg",
-    "limits_deg",
-    "disc_height_mm",
-    "flexion_axis_offset_mm",
-}
-DEFAULT_SPINE_INITIATOR = "T12_L1"  # the thoracolumbar junction (seed 004's examples)
-
-# Physical ranges (SCHEMA.md): a value outside is a typo or a unit slip (mm for m), and
-# float32 kinematics stays finite and well-scaled inside them.
-LENGTH_M = (1e-4, 10.0)  # segment lengths and sphere radii
-MASS_KG = (0.0, 1000.0)  # massless segments stay legal
-POSITION_M = 10.0  # |coordinate| of centroids and sphere origins in the cross of axes
-SPINE_ANGLE_DEG = 90.0  # |rest and limit angles| of one intervertebral joint
-DISC_HEIGHT_MM = (0.0, 50.0)
-AXIS_OFFSET_MM = 100.0  # |flexion-axis offset| from the disc centre
-VERTEBRA_SIZE_MM = (1.0, 200.0)
-MIN_SWING_MAX_DEG = 1e-3
-
-
-class _Object(dict):
-    """A JSON object that remembers the keys it was given twice (json keeps the last)."""
-
-    duplicates: tuple[str, ...] = ()
-
-
-def _object(pairs: list[tuple[str, Any]]) -> _Object:
-    obj = _Object(pairs)
-    keys = [k for k, _ in pairs]
-    obj.duplicates = tuple(sorted({k for k in keys if keys.count(k) > 1}))
-    return obj
-
-
-class BodyFileError(ValueError):
-    """A body file that cannot be loaded; the message says where and how to fix it."""
-
-
-class _Where:
-    """Where we are in the file, for error messages."""
-
-    def __init__(self, path: str, entry: str):
-        self.path, self.entry = path, entry
-
-    def fail(self, field: str | None, message: str) -> BodyFileError:
-        at = f", field {field!r}" if field else ""
-        return BodyFileError(f"{self.path}: {self.entry}{at}: {message}")
-
-    def fields(self, obj: Any, required: set[str], optional: set[str] = frozenset()) -> None:
-        """obj is an object with every required field, no unknown one, none given twice; the
-        free-text fields `source` and `description`, where allowed and given, are text."""
-        if not isinstance(obj, dict):
-            raise self.fail(None, f"must be a JSON object, got {type(obj).__name__}")
-        for f in getattr(obj, "duplicates", ()):
-            raise self.fail(f, "given twice; keep one")
-        for f in sorted(required - obj.keys()):
-            raise self.fail(f, "missing (required)")
-        for f in sorted(obj.keys() - required - optional):
-            allowed = ", ".join(sorted(required | optional))
-            raise self.fail(f, f"unknown field; allowed fields are: {allowed}")
-        for f in ("source", "description"):
-            if f in obj:
-                self.string(obj, f)
-
-    def string(self, obj: dict, field: str) -> str:
-        v = obj[field]
-        if not isinstance(v, str) or not v:
-            raise self.fail(field, f"must be a non-empty string, got {v!r}")
-        return v
-
-    def number(
-        self,
-        obj: dict,
-        field: str,
-        *,
-        positive=False,
-        within: tuple[float, float] | None = None,
-        unit: str = "",
-    ) -> float:
-        """A finite number; > 0 when `positive`; in [lo, hi] `unit` when `within` is given."""
-        v = _finite(self, field, obj[field])
-        if positive and v <= 0:
-            raise self.fail(field, f"must be > 0, got {v}")
-        if within is not None:
-            _bounded(self, field, v, within, unit)
-        return v
-
-    def numbers(self, obj: dict, field: str, n: int, what: str) -> list[float]:
-        """A list of n finite numbers (`what` names them, e.g. "[x, y, z]")."""
-        v = obj[field]
-        if not isinstance(v, list) or len(v) != n:
-            raise self.fail(field, f"must be a list of {n} numbers {what}, got {v!r}")
-        return [_finite(self, field, x) for x in v]
-
-    def vector(
-        self, obj: dict, field: str, *, unit=False, bound: float | None = None
-    ) -> np.ndarray:
-        """[x, y, z]: finite, each |coordinate| <= bound; `unit` normalises a direction."""
-        a = np.asarray(self.numbers(obj, field, 3, "[x, y, z]"))
-        if bound is not None and np.max(np.abs(a)) > bound:
-            raise self.fail(
-                field, f"every coordinate must lie in [-{bound:g}, {bound:g}] m, got {a.tolist()}"
-            )
-        if unit:
-            scaled = a / max(np.max(np.abs(a)), 1e-300)  # |a| of 1e300 must not overflow
-            if np.max(np.abs(a)) < 1e-9:
-                raise self.fail(field, f"must be a non-zero direction, got {a.tolist()}")
-            a = scaled / np.linalg.norm(scaled)
-        return a
-
-    def range_deg(self, obj: dict, field: str, bound: float = 180.0) -> tuple[float, float]:
-        """[lo, hi] in degrees within [-bound, bound], returned in radians."""
-        lo, hi = self.numbers(obj, field, 2, "[lo, hi] in degrees")
-        if lo > hi:
-            raise self.fail(field, f"inverted limits: lo {lo} > hi {hi}; expected lo <= hi")
-        if lo < -bound or hi > bound:
-            raise self.fail(
-                field, f"must lie within [-{bound:g}, {bound:g}] degrees, got {[lo, hi]}"
-            )
-        return math.radians(lo), math.radians(hi)
-
-
-def _finite(where: _Where, field: str, v: Any) -> float:
-    """A JSON number as a finite float (not a bool, not a string, not 1e400 or NaN)."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise where.fail(field, f"must be a number, got {type(v).__name__} {v!r}")
-    try:
-        x = float(v)  # an integer too large for a float raises OverflowError
-    except OverflowError:
-        x = math.inf
-    if not math.isfinite(x):
-        shown = v if isinstance(v, float) else f"an integer of {len(str(v))} digits"
-        raise where.fail(field, f"must be a finite number, got {shown}")
-    return x
+# The `X as X` imports above are re-exports: code elsewhere imports BodyFileError, _object,
+# body_document and save_body (and data_file, _Where, load_spine) from here as well as from
+# their homes, `_data_files`, `_saving` and `_spine_file`.
 
 
 def _limits(where: _Where, seg: dict) -> tuple[str, list[float], list[float], float, float, float]:
@@ -244,17 +110,6 @@ def _enclosure(origins: np.ndarray, radii: np.ndarray) -> tuple[float, float]:
     return z, f(z)
 
 
-def data_file(name: str) -> Path:
-    """A file of the embedded data: data/ of a source checkout or of the installed wheel."""
-    for folder in (
-        Path(__file__).resolve().parent.parent / "data",  # a source checkout
-        Path(str(resources.files("diffbody"))) / "data",  # an installed wheel
-    ):
-        if (folder / name).is_file():
-            return folder / name
-    raise FileNotFoundError(f"diffbody: embedded data file {name!r} not found")
-
-
 def _resolve(path: str | Path | None, variant: str) -> Path:
     if path is not None:
         return Path(path)
@@ -266,33 +121,6 @@ def _resolve(path: str | Path | None, variant: str) -> Path:
         raise ValueError(
             f"load_body: unknown variant {variant!r}; available variants: {found}"
         ) from None
-
-
-def _read_json(path: Path, kind: str) -> Any:
-    """The JSON document of a `kind` ("body" or "spine") file; every failure names the file.
-    Objects keep the keys given twice (`_Object.duplicates`) for `_Where.fields` to reject."""
-    shown = str(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{shown}: no such {kind} file") from None
-    except IsADirectoryError:
-        raise BodyFileError(f"{shown}: is a directory; expected a {kind} JSON file") from None
-    except UnicodeDecodeError as e:
-        raise BodyFileError(
-            f"{shown}: not UTF-8 text (byte 0x{e.object[e.start]:02x} at offset {e.start}); "
-            f"a {kind} file is JSON saved as UTF-8"
-        ) from None
-    except OSError as e:
-        raise BodyFileError(f"{shown}: cannot read the {kind} file: {e.strerror}") from None
-    try:
-        return json.loads(text, object_pairs_hook=_object)
-    except json.JSONDecodeError as e:
-        raise BodyFileError(
-            f"{shown}: not valid JSON: {e.msg} at line {e.lineno} column {e.colno}"
-        ) from None
-    except RecursionError:
-        raise BodyFileError(f"{shown}: not valid JSON: nested too deeply") from None
 
 
 def load_body(path: str | Path | None = None, *, variant: str = "male50") -> Body:
@@ -561,246 +389,3 @@ def _stand_on_ground(body: Body) -> Body:
     radii = np.asarray(body.sphere_radii)
     lowest = float(np.min(centers[:, 2] - radii)) if body.n_spheres else 0.0
     return eqx.tree_at(lambda b: b.rest_position, body, jnp.asarray([0.0, 0.0, -lowest]))
-
-
-# --- spine databases ----------------------------------------------------------------------
-
-
-def load_spine(path: str | Path | None = None) -> Spine:
-    """Load and validate a spine database (default: data/spine.json; schema
-    "diffbody.spine/1", data/SCHEMA.md).
-
-    Raises:
-        BodyFileError: the file is malformed; the message names the file, the joint (or
-            vertebra) and the field, and what is expected.
-    """
-    path = data_file("spine.json") if path is None else Path(path)
-    shown = str(path)
-    doc = _read_json(path, "spine")
-    top = _Where(shown, "top level")
-    top.fields(doc, SPINE_TOP_FIELDS, SPINE_OPTIONAL_FIELDS)
-    if doc["schema"] != SPINE_SCHEMA:
-        raise top.fail("schema", f"must be {SPINE_SCHEMA!r}, got {doc['schema']!r}")
-    if "sources" in doc and (
-        not isinstance(doc["sources"], list) or not all(isinstance(s, str) for s in doc["sources"])
-    ):
-        raise top.fail("sources", "must be a list of citation strings")
-    if "angles" in doc:
-        top.string(doc, "angles")
-    joints = doc["joints"]
-    if not isinstance(joints, list) or not joints:
-        raise top.fail("joints", "must be a non-empty list of joint objects, top to bottom")
-
-    rows = []
-    for k, j in enumerate(joints):
-        label = j.get("name") if isinstance(j, dict) else None
-        where = _Where(shown, f"joint {label!r} (joints[{k}])" if label else f"joints[{k}]")
-        where.fields(j, SPINE_JOINT_FIELDS, {"source"})
-        name, seg = where.string(j, "name"), where.string(j, "segment")
-        for field, value in (("name", name), ("segment", seg)):
-            other = [r[field] for r in rows]
-            if value in other:
-                raise where.fail(
-                    field, f"duplicate {field} {value!r} (also joints[{other.index(value)}])"
-                )
-        if seg == WHOLE_BODY:
-            raise where.fail("segment", f"{WHOLE_BODY!r} is not a segment a spine joint moves")
-        rest = where.numbers(j, "rest_deg", 3, "(flexion, axial, lateral) in degrees")
-        if not isinstance(j["limits_deg"], dict):
-            raise where.fail("limits_deg", "must be an object {flexion, axial, lateral: [lo, hi]}")
-        lw = _Where(shown, where.entry + ", limits_deg")
-        lw.fields(j["limits_deg"], set(SPINE_ROTATIONS))
-        lo_hi = [lw.range_deg(j["limits_deg"], r, SPINE_ANGLE_DEG) for r in SPINE_ROTATIONS]
-        for axis, rot in enumerate(SPINE_ROTATIONS):
-            lo, hi = (math.degrees(x) for x in lo_hi[axis])
-            if not lo - 1e-9 <= rest[axis] <= hi + 1e-9:
-                raise where.fail(
-                    "rest_deg",
-                    f"the {rot} rest angle {rest[axis]:g} must lie within limits_deg.{rot} "
-                    f"[{lo:g}, {hi:g}]",
-                )
-        rows.append(
-            dict(
-                name=name,
-                segment=seg,
-                rest=np.radians(rest),
-                lower=[x[0] for x in lo_hi],
-                upper=[x[1] for x in lo_hi],
-                disc=where.number(j, "disc_height_mm", within=DISC_HEIGHT_MM, unit="mm"),
-                offset=[
-                    _bounded(where, "flexion_axis_offset_mm", x, AXIS_OFFSET_MM, "mm")
-                    for x in where.numbers(j, "flexion_axis_offset_mm", 2, "[x, z] in mm")
-                ],
-            )
-        )
-    names = tuple(r["name"] for r in rows)
-    initiator = doc.get("initiator", DEFAULT_SPINE_INITIATOR)
-    if "initiator" in doc:
-        top.string(doc, "initiator")
-    if initiator not in names:
-        raise top.fail(
-            "initiator",
-            f"no joint {initiator!r}: name the joint where a bend begins by default, one of "
-            f"{list(names)}" + ("" if "initiator" in doc else " (the default is T12_L1)"),
-        )
-
-    verts = doc["vertebrae"]
-    # The top joint (C7-T1) moves the neck; every joint below it moves a vertebra.
-    expected = [r["segment"] for r in rows[1:]]
-    if not isinstance(verts, list):
-        raise top.fail("vertebrae", "must be a list of vertebra objects")
-    sizes = []
-    for k, v in enumerate(verts):
-        label = v.get("name") if isinstance(v, dict) else None
-        vw = _Where(shown, f"vertebra {label!r} (vertebrae[{k}])" if label else f"vertebrae[{k}]")
-        vw.fields(v, {"name", "size_mm"}, {"source"})
-        vname = vw.string(v, "name")
-        if k >= len(expected) or vname != expected[k]:
-            raise vw.fail(
-                "name",
-                f"expected {expected[k]!r}, the segment of joints[{k + 1}]"
-                if k < len(expected)
-                else f"one vertebra per joint below the top one: {len(expected)} expected",
-            )
-        size = vw.numbers(v, "size_mm", 3, "[depth, breadth, height] in mm")
-        for x in size:
-            _bounded(vw, "size_mm", x, VERTEBRA_SIZE_MM, "mm")
-        sizes.append(size)
-    if len(verts) < len(expected):
-        raise top.fail(
-            "vertebrae",
-            f"missing {expected[len(verts) :]}: one vertebra per joint below the top one, "
-            "in the joints' order",
-        )
-
-    return Spine(
-        joint_names=names,
-        initiator=names.index(initiator),
-        segment_names=tuple(r["segment"] for r in rows),
-        vertebra_names=tuple(expected),
-        rest=jnp.asarray(np.stack([r["rest"] for r in rows])),
-        lower=jnp.asarray([r["lower"] for r in rows]),
-        upper=jnp.asarray([r["upper"] for r in rows]),
-        disc_heights=jnp.asarray([r["disc"] for r in rows]) / 1000.0,
-        flexion_axis_offsets=jnp.asarray([r["offset"] for r in rows]) / 1000.0,
-        vertebra_sizes=jnp.asarray(np.reshape(sizes, (-1, 3))) / 1000.0,
-    )
-
-
-def _bounded(where: _Where, field: str, x: float, bound, unit: str = "") -> float:
-    """x within bound, (lo, hi) or b for [-b, b], in `unit`; else a BodyFileError."""
-    lo, hi = bound if isinstance(bound, tuple) else (-bound, bound)
-    if not lo <= x <= hi:
-        unit = f" {unit}" if unit else ""
-        raise where.fail(field, f"must lie in [{lo:g}, {hi:g}]{unit}, got {x:g}")
-    return x
-
-
-# --- writing ----------------------------------------------------------------------------------
-
-
-def _deg(x) -> float:
-    return float(np.degrees(float(x)))
-
-
-def _limits_doc(body: Body, i: int) -> dict:
-    """The stop function of segment i as a body file's `limits` object (degrees)."""
-    kind = body.limit_kind[i]
-    if kind == "free":
-        return {"kind": "free"}
-    lo, hi = np.asarray(body.swing_lo[i]), np.asarray(body.swing_hi[i])
-    twist = [_deg(body.twist_lo[i]), _deg(body.twist_hi[i])]
-    smax = _deg(body.swing_max[i])
-    if kind == "cone":
-        return {"kind": "cone", "swing_max_deg": smax, "twist_deg": twist}
-    doc = {"kind": kind}
-    if kind == "box":
-        doc["swing_x_deg"] = [_deg(lo[0]), _deg(hi[0])]
-    doc["swing_y_deg"] = [_deg(lo[1]), _deg(hi[1])]
-    if kind == "box" and abs(smax - DEFAULT_SWING_MAX_DEG) > 1e-9:
-        doc["swing_max_deg"] = smax
-    doc["twist_deg"] = twist
-    return doc
-
-
-def body_document(body: Body, spine_file: str | None = None) -> dict:
-    """The body as a `diffbody.body/1` document (data/SCHEMA.md); `spine_file` names its
-    spine database relative to the body file."""
-    origins, radii = np.asarray(body.sphere_origins), np.asarray(body.sphere_radii)
-    dirs, seg_of = np.asarray(body.feature_directions), np.asarray(body.sphere_segment)
-    features: dict[int, list] = {}
-    for name, k, d in zip(body.feature_names, body.feature_sphere, dirs):
-        features.setdefault(k, []).append({"name": name.split(".", 1)[1], "direction": d.tolist()})
-    segments = []
-    for i in range(1, body.n_segments):
-        spheres = []
-        for k in np.flatnonzero(seg_of == i):
-            s = {"origin": origins[k].tolist(), "radius": float(radii[k])}
-            if k in features:
-                s["features"] = features[k]
-            spheres.append(s)
-        segments.append(
-            {
-                "name": body.segment_names[i],
-                "proximal": body.joint_names[body.proximal_joint[i]],
-                "distal": body.joint_names[body.distal_joint[i]],
-                "length": float(body.lengths[i]),
-                "direction": np.asarray(body.R_socket_rest[i][:, 2]).tolist(),
-                "standard_orientation": body.standard_kind[i],
-                "limits": _limits_doc(body, i),
-                "mass": float(body.masses[i]),
-                "centroid": np.asarray(body.centroids[i]).tolist(),
-                "spheres": spheres,
-            }
-        )
-    doc = {
-        "schema": SCHEMA,
-        "name": body.name,
-        "description": f"written by diffbody from {body.source}",
-        "sources": [body.source],
-        "root_joint": body.joint_names[body.default_root_joint],
-        "segments": segments,
-    }
-    if spine_file is not None:
-        doc["spine"] = spine_file
-    return doc
-
-
-def spine_document(spine: Spine) -> dict:
-    """The spine database as a `diffbody.spine/1` document (data/SCHEMA.md)."""
-    rest, lo, hi = (np.degrees(np.asarray(a)) for a in (spine.rest, spine.lower, spine.upper))
-    joints = [
-        {
-            "name": name,
-            "segment": seg,
-            "rest_deg": rest[k].tolist(),
-            "limits_deg": {r: [lo[k, a], hi[k, a]] for a, r in enumerate(SPINE_ROTATIONS)},
-            "disc_height_mm": float(spine.disc_heights[k]) * 1000.0,
-            "flexion_axis_offset_mm": (np.asarray(spine.flexion_axis_offsets[k]) * 1000).tolist(),
-        }
-        for k, (name, seg) in enumerate(zip(spine.joint_names, spine.segment_names))
-    ]
-    for j in joints:
-        j["limits_deg"] = {r: [float(x) for x in v] for r, v in j["limits_deg"].items()}
-    sizes = np.asarray(spine.vertebra_sizes) * 1000.0
-    return {
-        "schema": SPINE_SCHEMA,
-        "initiator": spine.joint_names[spine.initiator],
-        "joints": joints,
-        "vertebrae": [
-            {"name": v, "size_mm": sizes[k].tolist()} for k, v in enumerate(spine.vertebra_names)
-        ],
-    }
-
-
-def save_body(body: Body, path: str | Path) -> Path:
-    """Write a body file that `load_body` reads back to the same body (the enclosures
-    recomputed as the smallest). A body with a spine database also gets `<stem>.spine.json`
-    beside it, which the body file names. Returns the path written."""
-    path = Path(path)
-    spine_file = None
-    if body.spine is not None:
-        spine_file = f"{path.stem}.spine.json"
-        (path.parent / spine_file).write_text(json.dumps(spine_document(body.spine), indent=1))
-    path.write_text(json.dumps(body_document(body, spine_file), indent=1))
-    return path

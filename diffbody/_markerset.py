@@ -13,7 +13,6 @@ exactly like a sphere (seed 000, Fig. 7 as corrected), so its world position is
 (`diffbody._kinematics.place_on_segments`).
 """
 
-import json
 import math
 import warnings
 from pathlib import Path
@@ -25,8 +24,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._body import WHOLE_BODY, Body, Pose, rest_geometry, unknown_name_error
+from ._data_files import _read_json, _Where, data_file
 from ._kinematics import full_chain, place_on_segments, pose_frames, reroot, walk_links, world_base
-from ._loading import _object, _Where, data_file
 from ._markers import MarkerFileError, MarkerTrial
 
 SCHEMA = "diffbody.markerset/1"
@@ -110,22 +109,6 @@ def markerset_file(name_or_path) -> Path:
         folder = data_file("markersets/README.md").parent
         shipped = tuple(sorted(p.stem for p in folder.glob("*.json")))
         raise unknown_name_error("marker set", text, shipped) from None
-
-
-def _read_document(path: Path) -> Any:
-    shown = str(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{shown}: no such marker set file") from None
-    except (UnicodeDecodeError, IsADirectoryError, OSError) as e:
-        raise MarkerFileError(f"{shown}: cannot read the marker set file: {e}") from None
-    try:
-        return json.loads(text, object_pairs_hook=_object)
-    except json.JSONDecodeError as e:
-        raise MarkerFileError(
-            f"{shown}: not valid JSON: {e.msg} at line {e.lineno} column {e.colno}"
-        ) from None
 
 
 def _named(where: _Entry, field: str, kind: str, name: Any, valid: tuple[str, ...]) -> int:
@@ -220,7 +203,7 @@ def load_markerset(name_or_path, body: Body) -> MarkerSet:
     """
     path = markerset_file(name_or_path)
     shown = str(path)
-    doc = _read_document(path)
+    doc = _read_json(path, "marker set", MarkerFileError)
     top = _Entry(shown, "top level")
     top.fields(doc, TOP_FIELDS, TOP_OPTIONAL)
     if doc["schema"] != SCHEMA:

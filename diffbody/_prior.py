@@ -15,7 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._loading import data_file
+from ._data_files import data_file
 from ._measurements import MEASUREMENT_NAMES, UNITS, check_names
 
 SEXES = ("male", "female")

@@ -1,6 +1,6 @@
 """The spine of Monheit & Badler (1991, seed 004): Bendspine, Movespine, and the body's
 vertebrae set from spine angles. The database they read is `Spine` (`_body`), loaded by
-`load_spine` (`_loading`).
+`load_spine` (`_spine_file`).
 
 Angles are (flexion, axial, lateral) per joint, in radians, right-handed about the body's
 Y (left), Z (up) and X (forward) axes (DESIGN section 5):

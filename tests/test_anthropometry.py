@@ -9,7 +9,7 @@ import pytest
 
 import diffbody as db
 from diffbody._anthropometry import scaled_body
-from diffbody._loading import data_file
+from diffbody._data_files import data_file
 from diffbody._measurements import geometry
 from diffbody._prior import ansur2_subjects
 

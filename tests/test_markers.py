@@ -16,7 +16,7 @@ from hypothesis import given
 
 import diffbody as db
 from diffbody._body import rest_geometry
-from diffbody._loading import data_file
+from diffbody._data_files import data_file
 from diffbody._markers import (
     LAB_AXES,
     MarkerFileError,

@@ -18,7 +18,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import diffbody as db  # noqa: E402
-from diffbody._loading import data_file  # noqa: E402
+from diffbody._data_files import data_file  # noqa: E402
 from diffbody._markers import read_trc  # noqa: E402
 from diffbody._markerset import load_markerset, scale_offsets, world_markers  # noqa: E402
 
