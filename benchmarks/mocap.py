@@ -1,0 +1,378 @@
+"""Motion capture: diffbody's scaling and per-frame posture fit on OpenSim's Gait2354
+walking example, beside OpenSim's own Scale and InverseKinematics tools run in the same
+process on the same files; every figure beside its goal, with the machine and versions.
+
+    python benchmarks/mocap.py [--device cpu|gpu] [--x64] [--repeats 5] [--no-opensim]
+                               [--no-first] [--data FOLDER]
+
+Data: one adult walking (41 markers, 60 Hz, 151 frames) and a static trial (49 markers),
+`--data` (default ../shared/reference/mocap/opensim-gait2354, OpenSim's example files; where
+that folder is missing, the copies in data/mocap/, which lack OpenSim's models).
+
+1. **Accuracy on OpenSim's IK setup**: its 31 markers with their weights (parsed from
+   subject01_Setup_IK.xml), 0.4-1.6 s (73 frames). diffbody scales and registers the
+   default male body on the static trial (`scale_and_register`), then fits every frame
+   (`fit_motion`); OpenSim's IK runs with its scaled Gait2354 model. Both report the plain
+   RMS and the largest distance between model and measured markers per frame. Goals: mean
+   marker RMS <= 1.5 cm; no frame worse than OpenSim's same frame by more than 0.5 cm.
+   diffbody's own figures over the whole trial (all 41 markers, their marker-set weights,
+   151 frames) are printed beside.
+2. **Speed**: wall time of scaling (OpenSim's ScaleTool from its files; diffbody's
+   `scale_and_register`) and of fitting the 73 frames; frames/s after compilation. OpenSim's
+   frames/s is that of its solve alone (the full run minus a one-frame run, so that loading
+   the model and the trial does not count against it). Goal: diffbody >= 100x OpenSim's
+   frames/s. diffbody's compile time is the first call minus the median of the repeats;
+   its time to a first answer (load, scale, fit, compilation included) is measured in a
+   fresh process without the persistent compilation cache.
+
+Medians of `--repeats` runs (the machine may be shared). OpenSim (`pip install opensim`) is
+optional: without it the OpenSim columns say so.
+"""
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _opensim  # noqa: E402
+from common import (  # noqa: E402
+    child_env,
+    goal,
+    load_body,
+    machine,
+    not_measured,
+    print_goals,
+    select_device,
+    versions,
+)
+
+STATIC, WALK = "subject01_static.trc", "subject01_walk1.trc"
+RMS_GOAL = 0.015  # m: mean marker RMS over the frames
+FRAME_SLACK = 0.005  # m: no frame's RMS above OpenSim's same frame by more than this
+SPEED_GOAL = 100.0  # diffbody's frames/s over OpenSim's
+
+FIRST_ANSWER = """
+import json, sys, time, warnings
+sys.path.insert(0, {bench!r})
+from common import select_device
+select_device({device!r}, x64={x64!r})
+t0 = time.perf_counter()
+import jax
+import diffbody as db
+from diffbody._markers import read_trc
+from diffbody._markerset import load_markerset, match_markers
+from diffbody._mocap import scale_and_register, fit_motion
+imported = time.perf_counter()
+from common import load_body
+body = load_body(variant="male50")
+warnings.simplefilter("ignore")
+markerset = load_markerset("opensim-gait", body)
+static = read_trc({static!r})
+walk = read_trc({walk!r})
+fit = scale_and_register(body, static, markerset)
+markerset, walk = match_markers(fit.markerset, walk)
+out = fit_motion(fit.body, markerset, walk, start=fit.pose)
+print(json.dumps({{"import_s": imported - t0, "answer_s": time.perf_counter() - imported,
+                  "frames": int(len(out.times))}}))
+"""
+
+
+def first_answer(args) -> dict | None:
+    """Seconds from a fresh process's imports to the fitted walk (load, scale, fit, every
+    compilation included), the persistent compilation cache off."""
+    code = FIRST_ANSWER.format(
+        bench=str(Path(__file__).resolve().parent),
+        device=args.device,
+        x64=args.x64,
+        static=str(args.data / STATIC),
+        walk=str(args.data / WALK),
+    )
+    env = child_env(args.device) | {"JAX_ENABLE_COMPILATION_CACHE": "false"}
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    if run.returncode != 0:
+        print(f"first answer: the fresh process failed:\n{run.stderr[-2000:]}")
+        return None
+    return json.loads(run.stdout.strip().splitlines()[-1])
+
+
+def repeated(fn, repeats: int):
+    """(the result, seconds of the first call, median seconds of `repeats` further calls)."""
+    import jax
+
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(fn())
+    first = time.perf_counter() - t0
+    runs = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        runs.append(time.perf_counter() - t0)
+    return out, first, statistics.median(runs)
+
+
+def per_frame_table(times, ours, peer, label: str) -> tuple[float, int]:
+    """Print diffbody's and OpenSim's per-frame RMS side by side in a few rows; return the
+    worst excess of ours over the peer's (m) and how many frames exceed FRAME_SLACK."""
+    excess = ours - peer
+    print(f"\nper-frame marker RMS, {label} (cm; every 8th frame and the worst)")
+    print(f"  {'time s':>7}  {'diffbody':>8}  {'OpenSim':>8}  {'excess':>7}")
+    worst = int(np.argmax(excess))
+    for i in sorted(set(range(0, len(times), 8)) | {worst}):
+        mark = "  <- worst" if i == worst else ""
+        print(
+            f"  {times[i]:7.3f}  {100 * ours[i]:8.2f}  {100 * peer[i]:8.2f}  "
+            f"{100 * excess[i]:+7.2f}{mark}"
+        )
+    return float(excess.max()), int(np.sum(excess > FRAME_SLACK))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", choices=["cpu", "gpu"], default="cpu")
+    parser.add_argument("--x64", action="store_true", help="float64 (default float32)")
+    parser.add_argument("--repeats", type=int, default=5, help="timed runs, median (default 5)")
+    parser.add_argument("--no-opensim", action="store_true", help="skip OpenSim's tools")
+    parser.add_argument("--no-first", action="store_true", help="skip the fresh-process run")
+    parser.add_argument("--data", type=Path, default=None, help="the Gait2354 example folder")
+    args = parser.parse_args()
+    if args.data is None:
+        shipped = _opensim.REPO / "data" / "mocap"
+        args.data = _opensim.OPENSIM_DIR if _opensim.OPENSIM_DIR.is_dir() else shipped
+    for name in (STATIC, WALK, _opensim.IK_SETUP):
+        if not (args.data / name).is_file():
+            raise SystemExit(f"--data {args.data}: no {name}; give the Gait2354 example folder")
+    select_device(args.device, x64=args.x64)
+
+    osim = None if args.no_opensim else _opensim.opensim_version()
+    why_not = "--no-opensim" if args.no_opensim else "OpenSim not installed"
+    if osim is not None and not (args.data / "subject01_simbody.osim").is_file():
+        osim, why_not = None, f"no OpenSim model in {args.data}"
+    if osim is None:
+        print(f"note: OpenSim's tools not run ({why_not}); its columns stay empty")
+    print(machine())
+    print(versions(["jax", "jaxlib", "optimistix", "equinox", "numpy", "opensim"]))
+    print(f"dtype: {'float64' if args.x64 else 'float32'}; medians of {args.repeats} runs")
+
+    # Before anything in this process compiles: the fresh process has the machine to itself.
+    first = None if args.no_first else first_answer(args)
+
+    from diffbody._markers import read_trc
+    from diffbody._markerset import load_markerset, match_markers
+    from diffbody._mocap import fit_motion, scale_and_register
+
+    tasks = _opensim.ik_tasks(args.data / _opensim.IK_SETUP)
+    body = load_body(variant="male50")
+    static = read_trc(args.data / STATIC)
+    walk = read_trc(args.data / WALK)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        markerset = load_markerset("opensim-gait", body)
+        static_fit, scale_first, scale_s = repeated(
+            lambda: scale_and_register(body, static, markerset), args.repeats
+        )
+        registered, trial = match_markers(static_fit.markerset, walk)
+    for w in caught:
+        print(f"note: {w.message}")
+    print(
+        f"\nscaling: {len(static.names)} static markers, {len(markerset.names)} in the set; "
+        f"registered RMS {100 * float(np.sqrt(np.mean(np.asarray(static_fit.errors) ** 2))):.2f}"
+        f" cm, status {int(static_fit.status)}"
+    )
+
+    # OpenSim's setup: its markers (those the set maps), its weights, its frames.
+    missing = [n for n in tasks.names if n not in registered.names]
+    if missing:
+        raise SystemExit(f"the marker set does not map OpenSim's IK markers {missing}")
+    set_ik = registered.select(tasks.names)
+    trial_ik = trial.select(tasks.names).between(*tasks.time_range)
+    weights = np.asarray(tasks.weights, dtype=np.asarray(set_ik.weights).dtype)
+    fit_ik, ik_first, ik_s = repeated(
+        lambda: fit_motion(
+            static_fit.body, set_ik, trial_ik, start=static_fit.pose, weights=weights
+        ),
+        args.repeats,
+    )
+    fit_all, all_first, all_s = repeated(
+        lambda: fit_motion(static_fit.body, registered, trial, start=static_fit.pose),
+        args.repeats,
+    )
+    n_ik, n_all = len(fit_ik.times), len(fit_all.times)
+    converged_ik = float(np.mean(np.asarray(fit_ik.status) == 0))
+    converged_all = float(np.mean(np.asarray(fit_all.status) == 0))
+
+    scale_run = ik = None
+    ik_total_s = ik_frame_s = ik_diff = None
+    if osim is not None:
+        scale_runs = [_opensim.run_scale(args.data) for _ in range(args.repeats)]
+        scale_run = scale_runs[0]
+        ik = _opensim.run_ik(args.data)
+        ik_diff = _opensim.ik_reference_difference(ik, args.data)
+        ik_total_s, ik_frame_s = _opensim.ik_per_frame_seconds(args.data, args.repeats)
+
+    # --- accuracy ------------------------------------------------------------------------
+    goals = []
+    rms_ik, max_ik = np.asarray(fit_ik.rms), np.asarray(fit_ik.max)
+    print("\nmarker errors (cm)                      frames  markers  RMS mean  RMS max  max")
+    rows = [
+        ("diffbody, OpenSim's IK setup", n_ik, len(set_ik.names), rms_ik, max_ik),
+        (
+            "diffbody, whole trial (set weights)",
+            n_all,
+            len(registered.names),
+            fit_all.rms,
+            fit_all.max,
+        ),
+    ]
+    if ik is not None:
+        rows.insert(1, ("OpenSim IK (its setup)", ik.frames, len(ik.names), ik.rms, ik.max))
+    for label, frames, markers, rms, worst in rows:
+        rms, worst = np.asarray(rms), np.asarray(worst)
+        print(
+            f"  {label:<38}{frames:6d}  {markers:7d}  {100 * np.nanmean(rms):8.2f}  "
+            f"{100 * np.nanmax(rms):7.2f}  {100 * np.nanmax(worst):5.2f}"
+        )
+    if ik is not None:
+        print(
+            f"  OpenSim's joint angles within {ik_diff:.3f} deg of its shipped answer "
+            f"({_opensim.IK_REFERENCE}): {'ok' if ik_diff < 0.5 else 'DIFFERENT'}"
+        )
+
+    for label, fit, n in (("OpenSim's setup", fit_ik, n_ik), ("whole trial", fit_all, n_all)):
+        table = fit.per_marker()
+        if label == "OpenSim's setup":
+            peer = {}
+            if ik is not None:
+                e = ik.marker_errors
+                peer = dict(zip(ik.names, zip(np.sqrt(np.mean(e**2, 0)), e.max(0))))
+            print(f"\nper marker, {label} ({n} frames): RMS / max over the frames, cm")
+            print(f"  {'marker':<16} {'diffbody':>15} {'OpenSim':>15}")
+            for name in sorted(table, key=lambda k: -table[k][0]):
+                ours = f"{100 * table[name][0]:6.2f} / {100 * table[name][1]:5.2f}"
+                theirs = (
+                    f"{100 * peer[name][0]:6.2f} / {100 * peer[name][1]:5.2f}"
+                    if name in peer
+                    else "-"
+                )
+                print(f"  {name:<16} {ours:>15} {theirs:>15}")
+        else:
+            worst = sorted(table, key=lambda k: -table[k][0])[:5]
+            print(
+                f"\nworst markers, {label} (RMS / max, cm): "
+                + ", ".join(f"{k} {100 * table[k][0]:.2f} / {100 * table[k][1]:.2f}" for k in worst)
+            )
+
+    goals.append(
+        goal(
+            "mean marker RMS, OpenSim's setup (31 markers, 73 frames)",
+            100 * float(np.nanmean(rms_ik)),
+            100 * RMS_GOAL,
+            fmt=".2f",
+            unit=" cm",
+            op="<=",
+        )
+    )
+    goals.append(
+        goal(
+            f"mean marker RMS, whole trial ({len(registered.names)} markers, {n_all} frames)",
+            100 * float(np.nanmean(fit_all.rms)),
+            100 * RMS_GOAL,
+            fmt=".2f",
+            unit=" cm",
+            op="<=",
+        )
+    )
+    if ik is not None:
+        # OpenSim writes times rounded to 1 ms: match frames by the nearest time.
+        match = np.abs(np.asarray(fit_ik.times)[:, None] - ik.times[None, :]).argmin(1)
+        worst_excess, broken = per_frame_table(
+            np.asarray(fit_ik.times), rms_ik, ik.rms[match], "OpenSim's setup"
+        )
+        print(
+            f"  worst frame: {100 * worst_excess:+.2f} cm against OpenSim's same frame; "
+            f"{broken} of {n_ik} frames worse by more than {100 * FRAME_SLACK:.1f} cm"
+        )
+        goals.append(
+            goal(
+                f"frames worse than OpenSim's by > {100 * FRAME_SLACK:.1f} cm "
+                f"(worst {100 * worst_excess:+.2f} cm)",
+                float(broken),
+                0.0,
+                fmt=".0f",
+                op="<=",
+            )
+        )
+    else:
+        goals.append(
+            not_measured(
+                f"frames worse than OpenSim's by > {100 * FRAME_SLACK:.1f} cm",
+                "<= 0",
+                why_not,
+            )
+        )
+
+    # --- speed ---------------------------------------------------------------------------
+    fps_ik, fps_all = n_ik / ik_s, n_all / all_s
+    osim_scale_s = statistics.median(r.seconds for r in scale_runs) if scale_run else None
+
+    def cell(x, fmt):
+        return "-" if x is None else f"{x:{fmt}}"
+
+    print(
+        f"\ntimes (s; medians of {args.repeats})"
+        f"{'diffbody compile':>30}{'diffbody run':>14}{'OpenSim':>10}"
+    )
+    rows = [
+        ("scaling (static trial)", scale_first - scale_s, scale_s, osim_scale_s, "ScaleTool"),
+        (f"fit {n_ik} frames, OpenSim's setup", ik_first - ik_s, ik_s, ik_total_s, "whole tool"),
+        ("  OpenSim's solve alone", None, None, ik_frame_s and ik_frame_s * n_ik, "no loading"),
+        (f"fit {n_all} frames, whole trial", all_first - all_s, all_s, None, ""),
+    ]
+    for label, compile_s, run_s, theirs, note in rows:
+        compile_s = None if compile_s is None else max(compile_s, 0.0)
+        print(
+            f"  {label:<40}{cell(compile_s, '.1f'):>14}{cell(run_s, '.3f'):>14}"
+            f"{cell(theirs, '.3f'):>10}  {note if theirs is not None else ''}"
+        )
+    line = f"frames/s: diffbody {fps_ik:.0f} (OpenSim's setup), {fps_all:.0f} (whole trial)"
+    if ik_frame_s:
+        line += (
+            f"; OpenSim {1.0 / ik_frame_s:.1f} (solve alone), {ik.frames / ik_total_s:.1f} "
+            f"(whole tool); ratio {fps_ik * ik_frame_s:.2f}x"
+        )
+    print(f"  {line}")
+    print(
+        f"  converged frames: {converged_ik:.1%} (OpenSim's setup), {converged_all:.1%} (whole "
+        "trial)"
+    )
+    if first is not None:
+        print(
+            f"  diffbody's time to a first answer (fresh process: load, scale, fit "
+            f"{first['frames']} frames, compilation included): {first['answer_s']:.1f} s, after "
+            f"{first['import_s']:.1f} s of imports"
+        )
+    if ik_frame_s:
+        goals.append(
+            goal(
+                "frames/s over OpenSim's (fit, after compilation)",
+                fps_ik * ik_frame_s,
+                SPEED_GOAL,
+                fmt=".1f",
+                unit="x",
+                success=converged_ik,
+            )
+        )
+    else:
+        goals.append(not_measured("frames/s over OpenSim's", f">= {SPEED_GOAL:.0f}x", why_not))
+    print_goals(goals, "motion-capture goals")
+    print("  (here the success column is the fraction of frames whose fit converged)")
+
+
+if __name__ == "__main__":
+    main()

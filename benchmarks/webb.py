@@ -1,0 +1,288 @@
+"""Image-sequence analysis (seed 003): length and 3D joint errors of Webb's static analysis,
+of continuity-chosen reflections and of the joint refinement, against pixel noise and the
+number of frames; sequences per second batched; the structured solver against a dense one.
+
+    python benchmarks/webb.py [--quick] [--x64] [--repeats 3]
+
+Data: the default body (male50) walking-like and reaching (diffbody._motions), and the
+semi-real walk: the joint centres of the OpenSim example walk (`walk_joints`), each seen
+by pinhole cameras 3 m away (focal 1000 px, at 1.2 m height, several azimuths), with
+Gaussian pixel noise. Stages: "webb" is the seed's algorithm with the true reflections (its
+assumption 1), online, its joints as computed frame by frame; "continuity" chooses the
+reflections by least acceleration given the first frame's (the seed: "once the correct
+reflection is chosen it can be tracked"), lengths by formula (1) over every frame;
+"refined" is the joint least-squares refinement from it (default `LiftOptions`), the whole
+pipeline; "refined*" the same refinement started from the true reflections instead (what
+it does when the reflections are right). Errors:
+mean over parts of |L / L_true - 1| (the semi-real truth is each part's median over the
+trial), MPJPE over all joints and frames (camera frame, absolute: the reference depth is
+given), and the share of part-frames whose two reflections lie over 1 cm apart where the
+chosen reflection is the true one.
+"""
+
+import argparse
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from common import bench, goal, machine, print_goals
+
+NOISE = (0.0, 0.5, 1.0, 2.0)  # px
+FOCAL = 1000.0  # px
+DISTANCE, HEIGHT = 3.0, 1.2  # m
+SEPARATED = 0.01  # m: reflections count where the two candidates are this far apart
+
+
+def walk_joints() -> np.ndarray:
+    """The semi-real walk's joints (151, 15, 3) m, world frame: the one place the joint
+    source is chosen. From the marker files when data/mocap is present (the marker-midpoint
+    and regression approximations of `diffbody._joint_centres`), else from their copy in
+    data/webb/walk1_joints.csv. A fit of the body to the markers can replace it here."""
+    from diffbody._joint_centres import joint_centres_from_markers, load_walk_joints
+    from diffbody._markers import read_trc
+
+    mocap = Path(__file__).resolve().parent.parent / "data" / "mocap"
+    if (mocap / "subject01_walk1.trc").exists() and (mocap / "subject01_static.trc").exists():
+        return joint_centres_from_markers(
+            read_trc(mocap / "subject01_walk1.trc"), read_trc(mocap / "subject01_static.trc")
+        )
+    return load_walk_joints()[1]
+
+
+def sequences(tree, worlds, azimuths, noise, key, dtype):
+    """Every world sequence (T, J, 3) seen from every azimuth, with noise: a batch."""
+    from diffbody._pinhole import camera_around, image_sequence
+
+    seqs = []
+    for i, world in enumerate(worlds):
+        centre = np.asarray(world[:, tree.root]).mean(0)
+        for j, az in enumerate(azimuths):
+            cam = camera_around([centre[0], centre[1], 1.0], DISTANCE, az, HEIGHT, FOCAL)
+            k = jax.random.fold_in(key, 100 * i + j)
+            seqs.append(image_sequence(tree, cam, jnp.asarray(world), noise, k))
+    return jax.tree.map(lambda *x: jnp.stack(x).astype(dtype), *seqs)
+
+
+def errors(lengths, joints, truth_lengths, truth_joints):
+    rel = np.abs(np.asarray(lengths) / truth_lengths - 1).mean() * 100
+    mpjpe = np.linalg.norm(np.asarray(joints) - np.asarray(truth_joints), axis=-1).mean() * 1e3
+    return rel, mpjpe
+
+
+def _offline_true(tree, uv, depth, focal, truth):
+    """Formula (1) over every frame with the true reflections (the refinement's start when
+    the reflections are right)."""
+    from diffbody._reflections import choose_kernel
+
+    anchor = jnp.zeros(tree.n_parts, jnp.int32)
+    one = jax.vmap(lambda a, b, c, d: choose_kernel(tree, a, b, c, anchor, given=d))
+    return jax.jit(one)(uv, depth, focal, truth)
+
+
+def run_cell(tree, seq, truth_lengths):
+    """The stages on one batch: {stage: (length %, MPJPE mm, reflections %)}."""
+    from diffbody._lifting import lift, refine
+    from diffbody._webb import perpendicular_foot, true_reflections, webb
+
+    truth = np.asarray(true_reflections(tree, seq.joints))
+    w = webb(tree, seq.uv, seq.root_depth, seq.focal, truth)
+    choice, lifted = lift(tree, seq.uv, seq.root_depth, seq.focal, anchor=truth[:, 0])
+    seen = np.asarray(choice.separation) > SEPARATED
+    match = (np.asarray(choice.reflections) == truth)[seen].mean() * 100
+    start = _offline_true(tree, seq.uv, seq.root_depth, seq.focal, jnp.asarray(truth))
+    ideal = refine(tree, seq.uv, seq.root_depth, seq.focal, start.joints, start.median_lengths)
+    # the floor: formula (1) at the true joints, the most a static analysis can prove
+    joints = np.asarray(seq.joints)
+    ends, starts = joints[:, :, list(tree.part_end)], joints[:, :, list(tree.part_start)]
+    _, d = perpendicular_foot(starts, ends)
+    floor = np.abs(np.asarray(d).max(axis=1) / truth_lengths - 1).mean() * 100
+    return {
+        "floor": (floor, float("nan"), float("nan")),
+        "webb": errors(w.lengths, w.joints, truth_lengths, seq.joints) + (100.0,),
+        "continuity": errors(choice.lengths, choice.joints, truth_lengths, seq.joints) + (match,),
+        "refined": errors(lifted.lengths, lifted.joints, truth_lengths, seq.joints) + (match,),
+        "refined*": errors(ideal.lengths, ideal.joints, truth_lengths, seq.joints) + (100.0,),
+    }, lifted
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer cells and a small batch")
+    parser.add_argument("--x64", action="store_true", help="run in float64")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--batch", type=int, default=256, help="sequences per timed call")
+    args = parser.parse_args()
+    if args.x64:
+        jax.config.update("jax_enable_x64", True)
+    dtype = jnp.float64 if args.x64 else jnp.float32
+    import diffbody as db
+    from diffbody._joint_tree import default_joint_tree
+    from diffbody._motions import reaching_motion, walking_motion
+
+    print(machine())
+    tree = default_joint_tree()
+    body = db.load_body()
+    print(
+        f"skeleton: {tree.n_joints} joints, {tree.n_parts} parts; focal {FOCAL:g} px, "
+        f"cameras {DISTANCE:g} m away at {HEIGHT:g} m height"
+    )
+    key = jax.random.PRNGKey(0)
+    goals = []
+    frames = (10, 100) if args.quick else (10, 100, 1000)
+    noises = (0.0, 1.0) if args.quick else NOISE
+    synth_az = (0.0, 40.0, 80.0, 120.0)
+    real_az = (30.0, 60.0, 90.0, 135.0)
+
+    # --- accuracy --------------------------------------------------------------------------
+    rest = np.asarray(walking_motion(body, tree, 1))[0]
+    synth_lengths = np.linalg.norm(rest[list(tree.part_end)] - rest[list(tree.part_start)], axis=-1)
+    real = walk_joints()
+    real_parts = np.linalg.norm(
+        real[:, list(tree.part_end)] - real[:, list(tree.part_start)], axis=-1
+    )
+    real_lengths = np.median(real_parts, axis=0)
+    print(
+        f"semi-real walk: {len(real)} frames at 60 Hz; parts non-rigid by "
+        f"{real_parts.std(0).mean() * 1e3:.1f} mm (mean sd over the trial)"
+    )
+    print("\nstage         data        frames  noise px  length err %  MPJPE mm  reflections ok %")
+    table = {}
+    for data in ("synthetic", "semi-real"):
+        for T in frames + ((151,) if data == "semi-real" else ()):
+            if data == "semi-real" and T > len(real):
+                continue
+            if data == "synthetic":
+                worlds = [walking_motion(body, tree, T), reaching_motion(body, tree, T)]
+                azimuths, truth_lengths = synth_az, synth_lengths
+            else:
+                worlds, azimuths, truth_lengths = [real[:T]], real_az, real_lengths
+            for noise in noises:
+                seq = sequences(tree, worlds, azimuths, noise, jax.random.fold_in(key, T), dtype)
+                t0 = time.perf_counter()
+                cell, lifted = run_cell(tree, seq, truth_lengths)
+                seconds = time.perf_counter() - t0
+                table[data, T, noise] = cell
+                for stage, (rel, mpjpe, match) in cell.items():
+                    if stage == "floor" and noise != noises[0]:
+                        continue  # the same at every noise level
+                    cols = f"{rel:>13.2f} {mpjpe:>9.1f} {match:>17.1f}".replace("nan", "  -")
+                    print(f"{stage:<13} {data:<11} {T:>6} {noise:>9.1f} {cols}")
+                status = np.bincount(np.asarray(lifted.status).ravel(), minlength=3)
+                print(
+                    f"{'':<13} ({len(seq.uv)} sequences, {seconds:.1f} s with compiles; refinement "
+                    f"converged {status[0]}, not converged {status[1]}, failed {status[2]})"
+                )
+
+    # --- reflections without any known frame ------------------------------------------------
+    from diffbody._reflections import choose_reflections
+    from diffbody._webb import true_reflections
+
+    seq = sequences(
+        tree,
+        [walking_motion(body, tree, 100), reaching_motion(body, tree, 100)],
+        synth_az,
+        1.0,
+        key,
+        dtype,
+    )
+    truth = np.asarray(true_reflections(tree, seq.joints))
+    free = choose_reflections(tree, seq.uv, seq.root_depth, seq.focal)
+    seen = np.asarray(free.separation) > SEPARATED
+    print(
+        f"\nreflections by continuity with no frame known (synthetic, 100 frames, 1 px): "
+        f"{(np.asarray(free.reflections) == truth)[seen].mean():.1%} match "
+        f"(a part's mirror image is as smooth: each part's branch is a guess)"
+    )
+
+    # --- speed -------------------------------------------------------------------------------
+    from diffbody._lifting import LiftOptions, lift_kernel
+    from diffbody._reflections import choose_kernel
+    from diffbody._webb import webb_kernel
+
+    n = 16 if args.quick else args.batch
+    world = [walking_motion(body, tree, 100)]
+    many = sequences(tree, world * n, (45.0,), 1.0, key, dtype)
+    refl = true_reflections(tree, many.joints)
+    anchor = refl[:, 0]
+    opts = jax.tree.map(lambda v: jnp.asarray(v, dtype), LiftOptions())
+
+    def webb_batch(uv, depth, focal, refl):
+        return jax.vmap(lambda a, b, c, d: webb_kernel(tree, a, b, c, d).lengths)(
+            uv, depth, focal, refl
+        )
+
+    def pipeline(uv, depth, focal, anchor):
+        def one(a, b, c, d):
+            ch = choose_kernel(tree, a, b, c, d)
+            return lift_kernel(tree, a, b, c, ch.joints, ch.median_lengths, opts).lengths
+
+        return jax.vmap(one)(uv, depth, focal, anchor)
+
+    print(
+        f"\nspeed: batches of {n} sequences of 100 frames, {dtype.__name__}, "
+        f"median of {args.repeats}"
+    )
+    c1, r1 = bench(webb_batch, (many.uv, many.root_depth, many.focal, refl), args.repeats)
+    print(
+        f"  webb alone      compile {c1:6.1f} s  run {r1 * 1e3:9.1f} ms  "
+        f"{n / r1:12,.0f} sequences/s"
+    )
+    c2, r2 = bench(pipeline, (many.uv, many.root_depth, many.focal, anchor), args.repeats)
+    print(
+        f"  whole pipeline  compile {c2:6.1f} s  run {r2 * 1e3:9.1f} ms  "
+        f"{n / r2:12,.0f} sequences/s "
+        f"(continuity + {LiftOptions().max_steps} Levenberg-Marquardt steps)"
+    )
+
+    # --- the structured solve against a dense one (one sequence, one refinement) ----------
+    import lineax as lx
+
+    for T in (30,) if args.quick else (30, 100):
+        one = sequences(tree, [walking_motion(body, tree, T)], (45.0,), 1.0, key, dtype)
+        ch = choose_kernel(tree, one.uv[0], one.root_depth[0], one.focal[0], anchor[0])
+        times = {}
+        for name, solver in (("banded", None), ("dense QR", lx.QR())):
+            if name == "dense QR" and T > 30:
+                continue
+
+            def solve(uv, depth, focal, joints, lengths, solver=solver):
+                return lift_kernel(tree, uv, depth, focal, joints, lengths, opts, solver).lengths
+
+            xs = (one.uv[0], one.root_depth[0], one.focal[0], ch.joints, ch.median_lengths)
+            times[name] = bench(solve, xs, args.repeats)
+        text = ", ".join(
+            f"{k} compile {c:.1f} s run {r * 1e3:.1f} ms" for k, (c, r) in times.items()
+        )
+        print(f"  one refinement of {T} frames ({T * (tree.n_parts + 1) * 2 + 8} unknowns): {text}")
+
+    # --- goals ---------------------------------------------------------------------------------
+    for data in ("synthetic", "semi-real"):
+        rel, mpjpe, _ = table[data, 100, 1.0]["refined"]
+        goals.append(
+            goal(
+                f"length error, refined, {data}, 1 px, 100 frames",
+                rel,
+                1.0,
+                fmt=".2f",
+                unit=" %",
+                op="<",
+            )
+        )
+        goals.append(
+            goal(
+                f"MPJPE, refined, {data}, 1 px, 100 frames",
+                mpjpe,
+                20.0,
+                fmt=".1f",
+                unit=" mm",
+                op="<",
+            )
+        )
+    goals.append(goal("whole pipeline, 100 frames, CPU", n / r2, 1000.0, fmt=",.0f", unit=" seq/s"))
+    print_goals(goals, "goals (the seed reports 10-15 % length error on hand-drawn figures)")
+
+
+if __name__ == "__main__":
+    main()

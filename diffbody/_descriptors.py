@@ -1,0 +1,123 @@
+"""Bone descriptors over time (DESIGN sections 4 and 7): for each bone of a fitted motion,
+seed 001's spherical descriptors (theta, phi, r) in its parent's local coordinate system and
+diffbody's own pose angles (theta, phi, tau) in its socket, made continuous over time.
+
+Both angle pairs are spherical coordinates of a direction: an azimuth about an axis and a
+polar angle from it (seed 001: the inclination theta from x' and the azimuth phi about it;
+seed 000: the azimuth theta about the socket's Z and the polar angle phi from it). Read
+frame by frame they jump: the azimuth wraps at +-pi, and a bone swinging through its pole
+(a leg through the hanging direction, an arm raised through the vertical) flips its
+azimuth by pi while its polar angle folds back. `unwrap_directions` keeps them continuous
+by choosing, in each frame, the representation of the same direction nearest the previous
+frame's: (azimuth + 2 pi k, polar + 2 pi m) or (azimuth + pi + 2 pi k, -polar + 2 pi m).
+So the polar angle may leave [0, pi] (the leg swinging back continues past pi) and no
+180-degree flip appears. At the pole the azimuth is undefined, and within `POLE` of it too
+ill-conditioned to follow (a bone passing 1 degree beside its pole turns its azimuth by
+180 degrees within a few frames): there it is held at its last value (before the first
+frame beyond `POLE`, at that frame's), and the next frame beyond `POLE` continues through
+the pole or back, whichever is nearer.
+"""
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._body import Body, Pose
+from ._kinematics import forward, pose_frames
+from ._local_frames import bone_descriptors
+from ._orientation import vector_to_azimuth_polar
+
+POLE = np.deg2rad(2.0)  # rad: within this of a pole the azimuth is held
+
+
+def _one(body: Body, pose: Pose) -> tuple[jax.Array, jax.Array]:
+    """The joint positions (n_joint, 3) and the pose angles (n_seg, 3) of one pose, the
+    spine's segments as its Bendspine target bends them."""
+    R_socket_base, tau = pose_frames(body, pose)
+    theta, phi, _ = vector_to_azimuth_polar(R_socket_base[:, :, 2])
+    return forward(body, pose).joint_positions, jnp.stack([theta, phi, tau], axis=-1)
+
+
+_many_jit = eqx.filter_jit(jax.vmap(_one, in_axes=(None, 0)))
+_SEED001: dict = {}
+
+
+def _seed001(body: Body):
+    """`bone_descriptors` over frames, compiled once per body: seed 001's frames read the
+    body's standard position on the host, so the body is a constant of the compiled
+    function (keyed by its structure and standard frames)."""
+    key = (jax.tree.structure(body), np.asarray(body.R_socket_rest).tobytes())
+    if key not in _SEED001:
+        _SEED001[key] = jax.jit(jax.vmap(lambda p: bone_descriptors(body, p)))
+    return _SEED001[key]
+
+
+def _near(value: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """value + 2 pi k nearest reference."""
+    return value + 2 * np.pi * np.round((reference - value) / (2 * np.pi))
+
+
+def unwrap_directions(
+    azimuth: np.ndarray, polar: np.ndarray, pole: float = POLE
+) -> tuple[np.ndarray, np.ndarray]:
+    """Spherical coordinates (n_frames, ...) of directions over time, made continuous
+    (module docstring): per frame the representation nearest the previous frame's in
+    (azimuth, polar), the azimuth held within `pole` (rad) of a pole. Returns new arrays."""
+    a, p = np.array(azimuth, float), np.array(polar, float)
+    if a.shape[0] == 0:
+        return a, p
+    defined = np.abs(np.sin(p)) >= np.sin(pole)
+    # Before a direction's first defined frame, its azimuth is that frame's.
+    first = np.argmax(defined, axis=0)
+    before = np.arange(len(a)).reshape((-1,) + (1,) * (a.ndim - 1)) < first
+    a = np.where(before, np.take_along_axis(a, first[None], axis=0), a)
+    for t in range(1, len(a)):
+        pa, pp = a[t - 1], p[t - 1]
+        a1, p1 = _near(a[t], pa), _near(p[t], pp)
+        a2, p2 = _near(a[t] + np.pi, pa), _near(-p[t], pp)
+        flip = (a2 - pa) ** 2 + (p2 - pp) ** 2 < (a1 - pa) ** 2 + (p1 - pp) ** 2
+        # At the pole only the polar angle counts: either sign of it is the same direction.
+        flip = np.where(defined[t], flip, np.abs(p2 - pp) < np.abs(p1 - pp))
+        a[t] = np.where(defined[t], np.where(flip, a2, a1), pa)
+        p[t] = np.where(flip, p2, p1)
+    return a, p
+
+
+def descriptors(body: Body, poses: Pose) -> dict:
+    """Per bone over time: seed 001's (theta, phi, r) and diffbody's own (theta, phi, tau),
+    unwrapped (module docstring).
+
+    Args:
+        body: the body of the poses.
+        poses: a `Pose` batched over frames (leading axis), e.g. `MotionFit.poses`.
+
+    Returns:
+        A dict: "names" (n_bones,) the bones (every segment but the whole body);
+        "seed001" (n_frames, n_bones, 3): theta the inclination from the parent's x' (rad),
+        phi the azimuth about it from z' (rad), r the bone's length (m) (seed 001's local
+        coordinate systems, `bone_descriptors`); "angles" (n_frames, n_bones, 3): theta the
+        azimuth and phi the polar angle of the bone in its socket, tau its twist (rad).
+        Angles are continuous over the frames: no 2 pi wraps and no pi flips.
+    """
+    poses = jax.tree.map(jnp.asarray, poses)
+    if poses.angles.ndim != 3:
+        raise ValueError(
+            f"descriptors: poses must be batched over frames, angles (n_frames, n_seg, 3); "
+            f"got angles of shape {poses.angles.shape} (one pose: add a leading axis)"
+        )
+    anonymous = dataclasses.replace(body, name="", source="")
+    joints, angles = _many_jit(anonymous, poses)
+    spherical = _seed001(anonymous)(joints)
+    spherical, angles = (np.asarray(a, float)[:, 1:] for a in (spherical, angles))
+    phi, theta = unwrap_directions(spherical[..., 1], spherical[..., 0])
+    spherical = np.stack([theta, phi, spherical[..., 2]], axis=-1)
+    azimuth, polar = unwrap_directions(angles[..., 0], angles[..., 1])
+    tau = np.unwrap(angles[..., 2], axis=0)
+    return {
+        "names": body.segment_names[1:],
+        "seed001": spherical,
+        "angles": np.stack([azimuth, polar, tau], axis=-1),
+    }

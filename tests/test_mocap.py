@@ -1,0 +1,406 @@
+"""Motion capture: scaling and registration on a static trial, the posture of every frame,
+and the bone descriptors over time (diffbody._mocap, diffbody._descriptors).
+
+The synthetic subject is the male median body scaled by known axial factors, with the
+shipped marker set carried to it (`scale_offsets`), posed by known free vectors; its
+markers come from `world_markers` (the walk of `forward`, not the fit's own kernel). One
+static fit and one motion fit shape are compiled for the whole module."""
+
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+import diffbody as db
+from diffbody._anthropometry import LENGTHS, _linear_model_jit
+from diffbody._descriptors import descriptors, unwrap_directions
+from diffbody._markers import MarkerTrial
+from diffbody._markerset import MarkerWarning, load_markerset, scale_offsets, world_markers
+from diffbody._mocap import (
+    MIN_MARKERS,
+    N_GROUPS,
+    PRIOR_MEASUREMENTS,
+    FitStatus,
+    _walk_markers,
+    fit_motion,
+    mocap_layout,
+    population_prior,
+    rigid_fit,
+    rotation_vector,
+    scale_and_register,
+    tree_markers,
+)
+from diffbody._problem import make_problem
+from diffbody._rotations import exp_rotvec
+from diffbody._scaling import SCALE_GROUPS, per_segment
+
+N_FRAMES = 4
+NOISE = 0.005  # m, per coordinate
+
+
+def trial_of(names, positions, source="synthetic") -> MarkerTrial:
+    positions = np.asarray(positions, float)
+    times = np.arange(len(positions)) / 100.0
+    return MarkerTrial(names=names, times=times, positions=positions, rate=100.0, source=source)
+
+
+@pytest.fixture(scope="module")
+def gait(male50):
+    return load_markerset("opensim-gait", male50)
+
+
+@pytest.fixture(scope="module")
+def subject(male50, gait):
+    """The scaled person, its marker set, a static pose and a smooth 4-frame motion (a
+    walk's translation plus posture changes), and their markers."""
+    rng = np.random.default_rng(3)
+    axial = np.exp(0.05 * rng.standard_normal(N_GROUPS))
+    axial[list(SCALE_GROUPS).index("hand")] = 1.0  # no marker sees the hands
+    a = per_segment(male50, axial)
+    ones = jnp.ones_like(a)
+    person = db.scale_body(male50, a, ones)
+    markers = scale_offsets(gait, male50, a, ones)
+    lay = mocap_layout(person, markers)
+    rest = person.rest_pose()
+    problem = make_problem(person, lay.pose, rest)
+    n = lay.pose.n_free
+    x_static = np.asarray(problem.x0) + 0.15 * rng.standard_normal(n)
+    x_static[-6:] = [0.3, -0.1, 0.0, 0.0, 0.0, 0.4]  # placed and turned
+    step = 0.05 * rng.standard_normal(n)
+    step[-6:] = [0.04, 0.0, 0.0, 0.0, 0.0, 0.02]  # walking forward, turning a little
+    xs = [x_static + t * step for t in range(1, N_FRAMES + 1)]
+    fk = jax.jit(lambda pose: (world_markers(person, pose, markers), db.forward(person, pose)))
+    static_pose = problem.pose(jnp.asarray(x_static), rest)
+    poses = [problem.pose(jnp.asarray(x), rest) for x in xs]
+    static_markers = np.asarray(fk(static_pose)[0])
+    out = [fk(p) for p in poses]
+    return {
+        "axial": axial,
+        "person": person,
+        "static_pose": static_pose,
+        "static_markers": static_markers,
+        "joints_static": np.asarray(fk(static_pose)[1].joint_positions),
+        "walk": np.stack([np.asarray(m) for m, _ in out]),
+        "joints": np.stack([np.asarray(k.joint_positions) for _, k in out]),
+    }
+
+
+@pytest.fixture(scope="module")
+def static_fit(male50, gait, subject):
+    """Noiseless static trial (two identical frames), offsets started at the truth, no
+    prior (float64)."""
+    trial = trial_of(gait.names, np.stack([subject["static_markers"]] * 2))
+    return scale_and_register(male50, trial, gait, prior=False)
+
+
+@pytest.fixture(scope="module")
+def noisy_static_fit(male50, gait, subject):
+    """The same with 5 mm of noise per coordinate: the same compiled fit."""
+    rng = np.random.default_rng(11)
+    noisy = subject["static_markers"] + NOISE * rng.standard_normal((2,) + gait.offsets.shape)
+    return scale_and_register(male50, trial_of(gait.names, noisy), gait, prior=False)
+
+
+@pytest.fixture(scope="module")
+def motion(static_fit, subject):
+    def run(positions, **kwargs):
+        trial = trial_of(static_fit.markerset.names, positions)
+        return fit_motion(
+            static_fit.body, static_fit.markerset, trial, start=static_fit.pose, **kwargs
+        )
+
+    return run
+
+
+# --- the static fit ---------------------------------------------------------------------------
+def test_static_fit_recovers_the_scale_factors_and_the_pose(static_fit, subject):
+    """Noiseless markers of a scaled, posed body: every axial factor to 1e-6 relative, the
+    markers to a micrometre, every joint to 1e-6 m; the registered set puts the markers back
+    where they were measured through `world_markers`."""
+    assert static_fit.status == FitStatus.CONVERGED
+    np.testing.assert_allclose(static_fit.axial, subject["axial"], rtol=1e-6)
+    assert np.max(static_fit.errors) < 1e-6
+    joints = db.forward(static_fit.body, static_fit.pose).joint_positions
+    np.testing.assert_allclose(joints, subject["joints_static"], atol=1e-6)
+    placed = world_markers(static_fit.body, static_fit.pose, static_fit.markerset)
+    np.testing.assert_allclose(placed, subject["static_markers"], atol=1e-6)
+
+
+def test_noisy_static_fit_finds_the_lengths(noisy_static_fit, subject):
+    """5 mm noise on every coordinate of the (averaged) static trial: the limbs' lengths
+    within 5 mm, each marker's error about the noise."""
+    fit = noisy_static_fit
+    assert fit.status == FitStatus.CONVERGED
+    for name in ("left_thigh", "left_shank", "left_upper_arm", "left_forearm", "left_foot"):
+        i = fit.body.segment_index(name)
+        assert abs(float(fit.body.lengths[i] - subject["person"].lengths[i])) < 0.005, name
+    # Each marker's offset moves within its tolerance (5 mm for the landmarks): the errors
+    # stay below the noise's 3D norm, 5 mm * sqrt(3) at about 2 standard deviations.
+    assert np.sqrt(np.mean(np.asarray(fit.errors) ** 2)) < 2 * NOISE * np.sqrt(3)
+
+
+def test_prior_measurements_are_lengths(male50):
+    """The prior's measurements are decided by the axial factors (at least 80 % of each,
+    the rest being sphere radii at an extent), and its linear model reproduces `measure`
+    on a scaled body exactly (the measurements are linear within a piece)."""
+    A = np.asarray(_linear_model_jit(male50, jnp.ones(2 * N_GROUPS)))
+    rows = A[[LENGTHS.index(n) for n in PRIOR_MEASUREMENTS]]
+    assert np.all(rows[:, :N_GROUPS].sum(1) >= 0.8 * rows.sum(1))
+    prior = population_prior(True, male50, None, ("lengths", "offsets"))
+    s = 1.0 + 0.02 * np.sin(np.arange(N_GROUPS))
+    a = per_segment(male50, s)
+    scaled = db.scale_body(male50, a, jnp.ones_like(a))
+    np.testing.assert_allclose(
+        prior.A @ np.concatenate([s, np.ones(N_GROUPS)]),
+        db.measure(scaled, PRIOR_MEASUREMENTS),
+        rtol=1e-9,
+    )
+
+
+# --- every frame ---------------------------------------------------------------------------
+def test_motion_fit_recovers_the_poses(motion, subject):
+    """Noiseless markers of a smooth motion (a walk forward while turning): every frame's
+    markers to 1e-6 m and its joints to 1e-5 m."""
+    fit = motion(subject["walk"])
+    assert np.all(fit.status == FitStatus.CONVERGED)
+    assert np.max(fit.errors) < 1e-6 and np.max(fit.rms) < 1e-6
+    for k in range(N_FRAMES):
+        joints = db.forward(subject["person"], fit.pose(k)).joint_positions
+        np.testing.assert_allclose(joints, subject["joints"][k], atol=1e-5)
+    per = fit.per_marker()
+    assert set(per) == set(fit.names) and max(m for _, m in per.values()) < 1e-6
+
+
+def test_noisy_motion_errors_are_the_noise(motion, subject, static_fit):
+    """5 mm noise per coordinate: the reported errors are least-squares residuals of n = 49
+    markers (3n rows) against p unknowns, whose mean square is 5 mm^2 (3n - p) / n per
+    marker; the pooled RMS lies within 20 % of 5 mm sqrt((3n - p) / n)."""
+    rng = np.random.default_rng(5)
+    noisy = subject["walk"] + NOISE * rng.standard_normal(subject["walk"].shape)
+    fit = motion(noisy)
+    n, p = len(fit.names), mocap_layout(static_fit.body, static_fit.markerset).pose.n_free
+    expected = NOISE * np.sqrt((3 * n - p) / n)
+    pooled = np.sqrt(np.mean(fit.errors**2))
+    assert 0.8 * expected < pooled < 1.2 * expected
+    np.testing.assert_allclose(fit.rms, np.sqrt(np.mean(fit.errors**2, axis=1)))
+    np.testing.assert_allclose(fit.max, np.max(fit.errors, axis=1))
+    summary = fit.summary()
+    assert summary["anatomical_rms"] > 0 and summary["tracking_rms"] > 0
+
+
+def test_missing_markers(motion, subject):
+    """A marker missing in some frames, another in every frame: every frame still fits its
+    present markers exactly, and the errors are NaN where a marker was missing."""
+    walk = subject["walk"].copy()
+    walk[1:3, 5] = np.nan
+    walk[:, 20] = np.nan
+    fit = motion(walk)
+    assert np.all(fit.status == FitStatus.CONVERGED)
+    missing = np.isnan(walk).any(-1)
+    assert np.array_equal(np.isnan(fit.errors), missing)
+    assert np.nanmax(fit.errors) < 1e-6 and np.all(np.isfinite(fit.rms))
+    assert np.isnan(fit.per_marker()[fit.names[20]][0])
+
+
+def test_a_frame_with_too_few_markers_fails_without_nan(motion, subject):
+    """A frame with fewer than MIN_MARKERS markers keeps its predecessor's posture and says
+    FAILED; the frames after it are fitted again."""
+    walk = subject["walk"].copy()
+    walk[2, MIN_MARKERS - 1 :] = np.nan
+    fit = motion(walk)
+    assert fit.status[2] == FitStatus.FAILED
+    assert np.all(fit.status[[0, 1, 3]] == FitStatus.CONVERGED)
+    np.testing.assert_allclose(fit.poses.angles[2], fit.poses.angles[1])
+    assert all(np.all(np.isfinite(a)) for a in jax.tree.leaves(fit.poses))
+    assert np.all(np.isfinite(fit.rms)) and np.max(fit.errors[3]) < 1e-6
+
+
+def test_weights_select_markers(motion, subject, static_fit):
+    """A {marker: weight} mapping: the markers it leaves out take no part (their errors are
+    still reported)."""
+    walk = subject["walk"].copy()
+    walk[:, 0, 0] += 0.05  # R.ASIS displaced: left out, it does not pull the pelvis
+    fit = motion(walk, weights={n: 1.0 for n in static_fit.markerset.names[1:]})
+    assert np.max(fit.errors[:, 1:]) < 1e-6
+    np.testing.assert_allclose(fit.errors[:, 0], 0.05, rtol=1e-4)
+
+
+# --- bad input ------------------------------------------------------------------------------
+def test_bad_input(static_fit, subject, male50, gait):
+    ms = static_fit.markerset
+    walk = trial_of(ms.names, subject["walk"])
+    other = trial_of(tuple(f"X{i}" for i in range(len(ms.names))), subject["walk"])
+    with pytest.raises(ValueError, match="share no marker"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", MarkerWarning)
+        fit_motion(static_fit.body, ms, other, start=static_fit.pose)
+    bad = db.Pose(
+        position=static_fit.pose.position.at[0].set(jnp.nan),
+        angles=static_fit.pose.angles,
+        spine_target=static_fit.pose.spine_target,
+    )
+    with pytest.raises(ValueError, match="start.position is not finite"):
+        fit_motion(static_fit.body, ms, walk, start=bad)
+    with pytest.raises(KeyError, match="Nope"):
+        fit_motion(static_fit.body, ms, walk, start=static_fit.pose, weights={"Nope": 1.0})
+    with pytest.raises(ValueError, match="at least one > 0"):
+        fit_motion(
+            static_fit.body, ms, walk, start=static_fit.pose, weights=np.zeros(len(ms.names))
+        )
+    static = trial_of(gait.names, subject["static_markers"][None])
+    with pytest.raises(ValueError, match="not a choice"):
+        scale_and_register(male50, static, gait, fit=("lengths", "width"))
+    few = static.positions.copy()
+    few[:, MIN_MARKERS - 1 :] = np.nan
+    with pytest.raises(ValueError, match="cannot be placed"):
+        scale_and_register(male50, trial_of(gait.names, few), gait, prior=False)
+
+
+# --- the kernel -----------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def kernel(male50, gait):
+    """The marker kernel as a function of (problem, lengths, offsets, posture), jacfwd and
+    jacrev of it compiled once; a random posture (twists included) with random lengths and
+    offsets."""
+    lay = mocap_layout(male50, gait)
+
+    def fast(problem, lengths, offsets, x):
+        return tree_markers(lay, problem, lengths, offsets, x)
+
+    pose = db.sample_pose(male50, jax.random.PRNGKey(0), spread=0.3)
+    problem = make_problem(male50, lay.pose, pose)
+    rng = np.random.default_rng(2)
+    x = problem.x0 + 0.2 * rng.standard_normal(problem.x0.shape)
+    lengths = male50.lengths * (1 + 0.1 * rng.uniform(size=male50.lengths.shape))
+    offsets = gait.offsets + 0.01 * rng.standard_normal(gait.offsets.shape)
+    argnums = (1, 2, 3)
+    return {
+        "lay": lay,
+        "fast": jax.jit(fast),
+        "jacfwd": jax.jit(jax.jacfwd(fast, argnums)),
+        "jacrev": jax.jit(jax.jacrev(fast, argnums)),
+        "args": (problem, lengths, offsets, x),
+    }
+
+
+def test_kernel_derivatives(kernel):
+    """The closed-form derivatives of the marker kernel (lengths, offsets, posture): jacfwd
+    equals jacrev and both match central differences along random directions."""
+    problem, *args = kernel["args"]
+    J_fwd = kernel["jacfwd"](problem, *args)
+    J_rev = kernel["jacrev"](problem, *args)
+    for a, b in zip(J_fwd, J_rev):
+        np.testing.assert_allclose(a, b, atol=1e-12)
+    rng = np.random.default_rng(9)
+    h = 1e-6
+    for _ in range(3):
+        v = [rng.standard_normal(np.shape(a)) for a in args]
+        up = kernel["fast"](problem, *(a + h * d for a, d in zip(args, v)))
+        down = kernel["fast"](problem, *(a - h * d for a, d in zip(args, v)))
+        directional = sum(np.tensordot(J, d, axes=d.ndim) for J, d in zip(J_fwd, v))
+        np.testing.assert_allclose((up - down) / (2 * h), directional, atol=1e-7)
+
+
+def test_kernel_equals_autodiff_through_the_walk(kernel):
+    """The closed form against plain forward-mode autodiff through the walk (the kernel's
+    fallback) along a random direction, and the kernel's value against the walk's."""
+    problem, *args = kernel["args"]
+    rng = np.random.default_rng(1)
+    v = tuple(jnp.asarray(rng.standard_normal(np.shape(a))) for a in args)
+
+    def plain(lengths, offsets, x):
+        return _walk_markers(problem, kernel["lay"], lengths, offsets, x)[0]
+
+    value, tangent = jax.jvp(plain, tuple(args), v)
+    J_fwd = kernel["jacfwd"](problem, *args)
+    directional = sum(np.tensordot(J, d, axes=d.ndim) for J, d in zip(J_fwd, v))
+    np.testing.assert_allclose(directional, tangent, atol=1e-12)
+    np.testing.assert_allclose(kernel["fast"](problem, *args), value, atol=1e-15)
+
+
+def test_kernel_gradients_are_finite_at_the_standard_position(kernel, male50, gait):
+    """At the standard position the limbs hang at their sockets' poles and the knees and
+    elbows sit at their stops: the Jacobian is finite."""
+    problem = make_problem(male50, kernel["lay"].pose, male50.rest_pose())
+    J = kernel["jacfwd"](problem, male50.lengths, gait.offsets, problem.x0)
+    assert all(np.all(np.isfinite(a)) for a in J) and np.any(J[2] != 0)
+
+
+def test_lean_layout(male50, gait):
+    """Only marked segments and those above them move: no hand is walked."""
+    lay = mocap_layout(male50, gait)
+    walked = {male50.segment_names[s] for s in lay.pose.chain.segments}
+    assert "left_hand" not in walked and "right_hand" not in walked
+    assert {"head", "left_forearm", "right_foot", "T6"} <= walked
+
+
+@given(st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3), st.floats(0.0, 3.1))
+def test_rotation_vector_inverts_exp(axis, angle):
+    a = np.asarray(axis)
+    if np.linalg.norm(a) < 1e-3:
+        a = np.array([0.0, 0.0, 1.0])
+    v = angle * a / np.linalg.norm(a)
+    np.testing.assert_allclose(rotation_vector(exp_rotvec(jnp.asarray(v))), v, atol=1e-9)
+
+
+def test_rigid_fit_recovers_a_rigid_motion():
+    rng = np.random.default_rng(4)
+    a = rng.standard_normal((6, 3))
+    R = np.asarray(exp_rotvec(jnp.asarray([0.3, -2.0, 1.1])))
+    t = np.array([0.5, -0.2, 1.0])
+    w = np.array([1.0, 2.0, 1.0, 0.5, 0.0, 1.0])
+    R_fit, t_fit = rigid_fit(jnp.asarray(a), jnp.asarray(a @ R.T + t), jnp.asarray(w))
+    np.testing.assert_allclose(R_fit, R, atol=1e-12)
+    np.testing.assert_allclose(t_fit, t, atol=1e-12)
+    R0, t0 = rigid_fit(jnp.asarray(a), jnp.asarray(a), jnp.zeros(6))
+    np.testing.assert_array_equal(R0, np.eye(3))
+
+
+# --- descriptors ----------------------------------------------------------------------------
+def _swinging(male50, n=21) -> db.Pose:
+    """A left leg swinging from flexion through the hanging direction into extension, 0.3
+    degrees beside its pole, and a left arm raised overhead and moved across through the
+    vertical: each passes by its socket's pole (the hanging leg at phi = pi, the raised arm
+    at phi = 0)."""
+    rest = male50.rest_pose()
+    s = np.deg2rad(np.linspace(-25.0, 25.0, n))
+    eps = np.deg2rad(0.3)
+    leg = np.stack([np.sin(s), np.full(n, eps), -np.cos(s)], -1)  # socket frame
+    arm = np.stack([np.full(n, eps), np.sin(s), np.cos(s)], -1)
+    angles = np.repeat(np.asarray(rest.angles)[None], n, axis=0)
+    for name, d in (("left_thigh", leg), ("left_upper_arm", arm)):
+        theta, phi, _ = db.vector_to_azimuth_polar(jnp.asarray(d))
+        angles[:, male50.segment_index(name), :2] = np.stack([theta, phi], -1)
+    return jax.vmap(lambda a: db.Pose(position=rest.position, angles=a))(jnp.asarray(angles))
+
+
+def test_descriptors_do_not_flip_near_the_poles(male50):
+    """A smooth motion past the poles: frame to frame no descriptor moves by more than 30
+    degrees (read frame by frame, the azimuths flip by about 180), and r is each bone's
+    length."""
+    poses = _swinging(male50)
+    d = descriptors(male50, poses)
+    names = d["names"]
+    assert d["seed001"].shape == d["angles"].shape == (21, male50.n_segments - 1, 3)
+    for key in ("seed001", "angles"):
+        jumps = np.abs(np.diff(d[key][..., :2], axis=0))
+        assert np.degrees(jumps.max()) < 30.0, key
+    raw = np.asarray(poses.angles)[:, male50.segment_index("left_upper_arm"), 0]
+    assert np.degrees(np.abs(np.diff(raw)).max()) > 90.0  # the flip the unwrapping removes
+    np.testing.assert_allclose(
+        d["seed001"][..., 2], np.broadcast_to(np.asarray(male50.lengths)[1:], (21, len(names)))
+    )
+
+
+def test_unwrap_holds_the_azimuth_at_the_pole():
+    """Straight through the pole: the azimuth is held there, the polar angle continues past
+    it (to negative values) instead of folding back."""
+    polar = np.abs(np.linspace(-0.5, 0.5, 11))
+    azimuth = np.where(np.linspace(-0.5, 0.5, 11) < 0, np.pi + 0.2, 0.2)
+    azimuth[5] = 1.234  # undefined at the pole
+    a, p = unwrap_directions(azimuth, polar)
+    np.testing.assert_allclose(a, np.pi + 0.2)
+    np.testing.assert_allclose(p, np.linspace(0.5, -0.5, 11), atol=1e-12)
