@@ -365,8 +365,8 @@ def _batch(args) -> int:
 
 def _scale(args) -> int:
     from ._anthropometry import scale_to
-    from ._saving import save_body
     from ._measurements import MEASUREMENT_NAMES, measurements
+    from ._saving import save_body
 
     _check_output("--out", args.out)
     _check_output("--png", args.png)
@@ -570,8 +570,15 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.set_defaults(run=_fit)
 
+    # Their modules import this one's helpers: imported here, not at the top.
+    from ._cli_mocap import add_mocap_command
+    from ._cli_webb import add_webb_command
+
+    add_mocap_command(sub)
+    add_webb_command(sub)
+
     args = parser.parse_args(argv)
-    if argv is None and args.command in ("reach", "batch", "scale", "fit"):
+    if argv is None and args.command in ("reach", "batch", "scale", "fit", "mocap", "webb"):
         keep_compiled()
     try:
         return args.run(args)
