@@ -10,8 +10,12 @@ from ._batch import solve_reach_batch
 from ._body import Body, Pose, Spine
 from ._clouds import sample_pose, synthetic_cloud
 from ._data_files import BodyFileError
+from ._descriptors import descriptors
 from ._fitting import FitStatus, SphereFit, fit_spheres, fit_spheres_batch
+from ._joint_centres import joint_centres_from_markers, load_walk_joints
+from ._joint_tree import JointTree, default_joint_tree, read_joint_tree, write_joint_tree
 from ._kinematics import Kinematics, forward
+from ._lifting import Lifting, LiftOptions, LiftStatus, lift, refine
 from ._limits import STOP_COLUMNS, angles_from_swing, stop_violation, swing_vector, within_limits
 from ._loading import load_body
 from ._local_frames import bone_descriptors, local_frame, local_frames, smooth_reference
@@ -34,6 +38,8 @@ from ._markerset import (
 )
 from ._measurements import MEASUREMENT_NAMES, MEASUREMENTS, measure, measurements
 from ._mjcf import export_mjcf, mujoco_joint_names, mujoco_qpos
+from ._mocap import MotionFit, StaticFit, fit_motion, scale_and_register
+from ._motions import reaching_motion, walking_motion
 from ._orientation import (
     azimuth_polar_to_inclination_azimuth,
     azimuth_polar_to_vector,
@@ -45,16 +51,28 @@ from ._orientation import (
     vector_to_azimuth_polar,
     vector_to_inclination_azimuth,
 )
+from ._pinhole import (
+    ImageSequence,
+    Pinhole,
+    camera_around,
+    image_sequence,
+    look_at,
+    project,
+    to_camera,
+)
 from ._posture import apply_standard_orientation, pose_from_joint_positions
 from ._prior import PopulationPrior
 from ._reach import ReachResult, ReachStatus, solve_reach
+from ._reflections import ReflectionChoice, choose_reflections
 from ._render import draw, draw_cloud, render
 from ._saving import save_body
 from ._scaling import SCALE_GROUPS, scale_body
+from ._sequence_plots import draw_bounds, draw_lifting
 from ._spine import BendResult, bend_pose, bendspine, movespine, spine_angles, with_spine_angles
 from ._spine_file import load_spine
 from ._targets import Target
 from ._urdf import export_urdf, urdf_joint_values
+from ._webb import WebbResult, perpendicular_foot, ray_sphere, true_reflections, webb
 
 __version__ = "0.1.0"
 
@@ -138,6 +156,41 @@ __all__ = [
     "match_markers",
     "scale_offsets",
     "world_markers",
+    "StaticFit",
+    "MotionFit",
+    "scale_and_register",
+    "fit_motion",
+    "descriptors",
+    # Image sequences (seed 003)
+    "JointTree",
+    "default_joint_tree",
+    "read_joint_tree",
+    "write_joint_tree",
+    "Pinhole",
+    "ImageSequence",
+    "look_at",
+    "camera_around",
+    "to_camera",
+    "project",
+    "image_sequence",
+    "walking_motion",
+    "reaching_motion",
+    "WebbResult",
+    "webb",
+    "perpendicular_foot",
+    "ray_sphere",
+    "true_reflections",
+    "ReflectionChoice",
+    "choose_reflections",
+    "LiftOptions",
+    "LiftStatus",
+    "Lifting",
+    "refine",
+    "lift",
+    "joint_centres_from_markers",
+    "load_walk_joints",
+    "draw_lifting",
+    "draw_bounds",
     # Export
     "export_mjcf",
     "export_urdf",
