@@ -273,7 +273,7 @@ def main() -> None:
             "mean marker RMS, OpenSim's setup (31 markers, 73 frames)",
             100 * float(np.nanmean(rms_ik)),
             100 * RMS_GOAL,
-            fmt=".2f",
+            fmt=".3f",
             unit=" cm",
             op="<=",
         )
@@ -283,7 +283,7 @@ def main() -> None:
             f"mean marker RMS, whole trial ({len(registered.names)} markers, {n_all} frames)",
             100 * float(np.nanmean(fit_all.rms)),
             100 * RMS_GOAL,
-            fmt=".2f",
+            fmt=".3f",
             unit=" cm",
             op="<=",
         )

@@ -159,7 +159,7 @@ def _mocap(args) -> int:
     )
     print(
         f"{args.motion}: {len(out.times)} frames, {len(out.names)} markers fitted "
-        f"in {fit_s:.1f} s ({len(out.times) / fit_s:.0f} frames/s), "
+        f"in {fit_s:.1f} s ({len(out.times) / fit_s:.3g} frames/s), "
         f"{converged} of {len(out.times)} frames converged"
     )
     print(

@@ -55,7 +55,7 @@ def _seed001(body: Body):
     return _SEED001[key]
 
 
-def _near(value: np.ndarray, reference: np.ndarray) -> np.ndarray:
+def _near(value, reference):
     """value + 2 pi k nearest reference."""
     return value + 2 * np.pi * np.round((reference - value) / (2 * np.pi))
 
