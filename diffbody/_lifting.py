@@ -317,24 +317,14 @@ def refine(
 
 @eqx.filter_jit
 def _pipeline_jit(tree, uv, root_depth, focal, anchor, anchor_frame, order, options):
-    from ._reflections import choose_kernel
-
-    flat = uv.shape[:-3]
-    n = int(np.prod(flat))
-    T, J = uv.shape[-3:-1]
+    from ._reflections import choose_kernel, over_sequences
 
     def one(a, b, c, d):
         choice = choose_kernel(tree, a, b, c, d, anchor_frame, order)
         start = choice.median_lengths  # robust to a wrong detection; directions from joints
         return choice, lift_kernel(tree, a, b, c, choice.joints, start, options)
 
-    out = jax.vmap(one)(
-        uv.reshape(n, T, J, 2),
-        root_depth.reshape(n, T),
-        jnp.broadcast_to(focal, flat).reshape(n),
-        jnp.broadcast_to(anchor, flat + (tree.n_parts,)).reshape(n, tree.n_parts),
-    )
-    return jax.tree.map(lambda x: x.reshape(flat + x.shape[1:]), out)
+    return over_sequences(one, tree, uv, root_depth, focal, anchor)
 
 
 def lift(

@@ -172,15 +172,12 @@ def check_anchor(tree: JointTree, anchor, shape, anchor_frame: int, order: int, 
     return a
 
 
-@eqx.filter_jit
-def _choose_jit(tree, uv, root_depth, focal, anchor, anchor_frame, order):
+def over_sequences(one, tree: JointTree, uv, root_depth, focal, anchor):
+    """`one(uv, root_depth, focal, anchor)` of one sequence, vmapped over the leading batch
+    axes of `uv` (..., T, J, 2); focal and anchor broadcast to every sequence."""
     flat = uv.shape[:-3]
     n = int(np.prod(flat))
     T, J = uv.shape[-3:-1]
-
-    def one(a, b, c, d):
-        return choose_kernel(tree, a, b, c, d, anchor_frame, order)
-
     out = jax.vmap(one)(
         uv.reshape(n, T, J, 2),
         root_depth.reshape(n, T),
@@ -188,6 +185,14 @@ def _choose_jit(tree, uv, root_depth, focal, anchor, anchor_frame, order):
         jnp.broadcast_to(anchor, flat + (tree.n_parts,)).reshape(n, tree.n_parts),
     )
     return jax.tree.map(lambda x: x.reshape(flat + x.shape[1:]), out)
+
+
+@eqx.filter_jit
+def _choose_jit(tree, uv, root_depth, focal, anchor, anchor_frame, order):
+    def one(a, b, c, d):
+        return choose_kernel(tree, a, b, c, d, anchor_frame, order)
+
+    return over_sequences(one, tree, uv, root_depth, focal, anchor)
 
 
 def choose_reflections(
