@@ -31,7 +31,7 @@ SCALE_SPREAD = 0.05  # log scale factor deviation
 
 def make_clouds(db, body, seed: int, n: int, noise: float, outliers: float, spread=0.15):
     """n clouds: (centers (n, m, 3), radii (n, m), true segment lengths (n, n_seg))."""
-    from diffbody._scaling import per_segment
+    from diffbody.anthropometry._scaling import per_segment
 
     g = len(db.SCALE_GROUPS)
 

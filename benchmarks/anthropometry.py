@@ -37,7 +37,7 @@ SEXES = ("male", "female")
 def held_out(db, sex: str, known: tuple[str, ...]) -> dict[str, float]:
     """Mean absolute errors (mm) over the other lengths of the odd rows: diffbody, uniform
     scaling by stature, the linear predictor."""
-    from diffbody._prior import ansur2_subjects
+    from diffbody.anthropometry._prior import ansur2_subjects
 
     rows, values = ansur2_subjects(sex)
     names = db.MEASUREMENT_NAMES
@@ -63,7 +63,7 @@ def held_out(db, sex: str, known: tuple[str, ...]) -> dict[str, float]:
 def population(db, known: tuple[str, ...]) -> tuple[float, float, float]:
     """(compile s, run s, fraction reproduced) over every subject of both sexes: the run is
     the second call, the compile time the first call minus the second."""
-    from diffbody._prior import ansur2_subjects
+    from diffbody.anthropometry._prior import ansur2_subjects
 
     cols = [db.MEASUREMENT_NAMES.index(k) for k in known]
     data = {sex: ansur2_subjects(sex)[1][:, cols] for sex in SEXES}

@@ -66,9 +66,9 @@ select_device({device!r}, x64={x64!r})
 t0 = time.perf_counter()
 import jax
 import diffbody as db
-from diffbody._markers import read_trc
-from diffbody._markerset import load_markerset, match_markers
-from diffbody._mocap import scale_and_register, fit_motion
+from diffbody.fitting._markers import read_trc
+from diffbody.fitting._markerset import load_markerset, match_markers
+from diffbody.fitting._mocap import scale_and_register, fit_motion
 imported = time.perf_counter()
 from common import load_body
 body = load_body(variant="male50")
@@ -163,9 +163,9 @@ def main() -> None:
     # Before anything in this process compiles: the fresh process has the machine to itself.
     first = None if args.no_first else first_answer(args)
 
-    from diffbody._markers import read_trc
-    from diffbody._markerset import load_markerset, match_markers
-    from diffbody._mocap import fit_motion, scale_and_register
+    from diffbody.fitting._markers import read_trc
+    from diffbody.fitting._markerset import load_markerset, match_markers
+    from diffbody.fitting._mocap import fit_motion, scale_and_register
 
     tasks = _opensim.ik_tasks(args.data / _opensim.IK_SETUP)
     body = load_body(variant="male50")

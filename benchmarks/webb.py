@@ -4,7 +4,7 @@ number of frames; sequences per second batched; the structured solver against a 
 
     python benchmarks/webb.py [--quick] [--x64] [--repeats 3]
 
-Data: the default body (male50) walking-like and reaching (diffbody._motions), and the
+Data: the default body (male50) walking-like and reaching (diffbody.images._motions), and the
 semi-real walk: the joint centres of the OpenSim example walk (`walk_joints`), each seen
 by pinhole cameras 3 m away (focal 1000 px, at 1.2 m height, several azimuths), with
 Gaussian pixel noise. Stages: "webb" is the seed's algorithm with the true reflections (its
@@ -38,10 +38,10 @@ SEPARATED = 0.01  # m: reflections count where the two candidates are this far a
 def walk_joints() -> np.ndarray:
     """The semi-real walk's joints (151, 15, 3) m, world frame: the one place the joint
     source is chosen. From the marker files when data/mocap is present (the marker-midpoint
-    and regression approximations of `diffbody._joint_centres`), else from their copy in
+    and regression approximations of `diffbody.images._joint_centres`), else from their copy in
     data/webb/walk1_joints.csv. A fit of the body to the markers can replace it here."""
-    from diffbody._joint_centres import joint_centres_from_markers, load_walk_joints
-    from diffbody._markers import read_trc
+    from diffbody.fitting._markers import read_trc
+    from diffbody.images._joint_centres import joint_centres_from_markers, load_walk_joints
 
     mocap = Path(__file__).resolve().parent.parent / "data" / "mocap"
     if (mocap / "subject01_walk1.trc").exists() and (mocap / "subject01_static.trc").exists():
@@ -53,7 +53,7 @@ def walk_joints() -> np.ndarray:
 
 def sequences(tree, worlds, azimuths, noise, key, dtype):
     """Every world sequence (T, J, 3) seen from every azimuth, with noise: a batch."""
-    from diffbody._pinhole import camera_around, image_sequence
+    from diffbody.images._pinhole import camera_around, image_sequence
 
     seqs = []
     for i, world in enumerate(worlds):
@@ -74,7 +74,7 @@ def errors(lengths, joints, truth_lengths, truth_joints):
 def _offline_true(tree, uv, depth, focal, truth):
     """Formula (1) over every frame with the true reflections (the refinement's start when
     the reflections are right)."""
-    from diffbody._reflections import choose_kernel
+    from diffbody.images._reflections import choose_kernel
 
     anchor = jnp.zeros(tree.n_parts, jnp.int32)
     one = jax.vmap(lambda a, b, c, d: choose_kernel(tree, a, b, c, anchor, given=d))
@@ -83,8 +83,8 @@ def _offline_true(tree, uv, depth, focal, truth):
 
 def run_cell(tree, seq, truth_lengths):
     """The stages on one batch: {stage: (length %, MPJPE mm, reflections %)}."""
-    from diffbody._lifting import lift, refine
-    from diffbody._webb import perpendicular_foot, true_reflections, webb
+    from diffbody.images._lifting import lift, refine
+    from diffbody.images._webb import perpendicular_foot, true_reflections, webb
 
     truth = np.asarray(true_reflections(tree, seq.joints))
     w = webb(tree, seq.uv, seq.root_depth, seq.focal, truth)
@@ -118,8 +118,8 @@ def main() -> None:
         jax.config.update("jax_enable_x64", True)
     dtype = jnp.float64 if args.x64 else jnp.float32
     import diffbody as db
-    from diffbody._joint_tree import default_joint_tree
-    from diffbody._motions import reaching_motion, walking_motion
+    from diffbody.images._joint_tree import default_joint_tree
+    from diffbody.images._motions import reaching_motion, walking_motion
 
     print(machine())
     tree = default_joint_tree()
@@ -176,8 +176,8 @@ def main() -> None:
                 )
 
     # --- reflections without any known frame ------------------------------------------------
-    from diffbody._reflections import choose_reflections
-    from diffbody._webb import true_reflections
+    from diffbody.images._reflections import choose_reflections
+    from diffbody.images._webb import true_reflections
 
     seq = sequences(
         tree,
@@ -197,9 +197,9 @@ def main() -> None:
     )
 
     # --- speed -------------------------------------------------------------------------------
-    from diffbody._lifting import LiftOptions, lift_kernel
-    from diffbody._reflections import choose_kernel
-    from diffbody._webb import webb_kernel
+    from diffbody.images._lifting import LiftOptions, lift_kernel
+    from diffbody.images._reflections import choose_kernel
+    from diffbody.images._webb import webb_kernel
 
     n = 16 if args.quick else args.batch
     world = [walking_motion(body, tree, 100)]

@@ -226,3 +226,9 @@ def rest_geometry(body: Body) -> tuple[np.ndarray, np.ndarray]:
         "kij,kj->ki", R[seg], np.asarray(body.sphere_origins)
     )
     return p, centers
+
+
+def without_names(body: Body) -> Body:
+    """The body without its name and source, static fields no kernel reads: every body of one
+    structure then shares one compiled function (fits, rendering, descriptors)."""
+    return dataclasses.replace(body, name="", source="")

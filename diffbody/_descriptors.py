@@ -18,14 +18,12 @@ frame beyond `POLE`, at that frame's), and the next frame beyond `POLE` continue
 the pole or back, whichever is nearer.
 """
 
-import dataclasses
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._body import Body, Pose
+from ._body import Body, Pose, without_names
 from ._kinematics import forward, pose_frames
 from ._local_frames import bone_descriptors
 from ._orientation import vector_to_azimuth_polar
@@ -42,17 +40,17 @@ def _one(body: Body, pose: Pose) -> tuple[jax.Array, jax.Array]:
 
 
 _many_jit = eqx.filter_jit(jax.vmap(_one, in_axes=(None, 0)))
-_SEED001: dict = {}
+_BONE_DESCRIPTORS_MANY: dict = {}
 
 
-def _seed001(body: Body):
+def _bone_descriptors_many(body: Body):
     """`bone_descriptors` over frames, compiled once per body: seed 001's frames read the
     body's standard position on the host, so the body is a constant of the compiled
     function (keyed by its structure and standard frames)."""
     key = (jax.tree.structure(body), np.asarray(body.R_socket_rest).tobytes())
-    if key not in _SEED001:
-        _SEED001[key] = jax.jit(jax.vmap(lambda p: bone_descriptors(body, p)))
-    return _SEED001[key]
+    if key not in _BONE_DESCRIPTORS_MANY:
+        _BONE_DESCRIPTORS_MANY[key] = jax.jit(jax.vmap(lambda p: bone_descriptors(body, p)))
+    return _BONE_DESCRIPTORS_MANY[key]
 
 
 def _near(value, reference):
@@ -108,9 +106,9 @@ def descriptors(body: Body, poses: Pose) -> dict:
             f"descriptors: poses must be batched over frames, angles (n_frames, n_seg, 3); "
             f"got angles of shape {poses.angles.shape} (one pose: add a leading axis)"
         )
-    anonymous = dataclasses.replace(body, name="", source="")
+    anonymous = without_names(body)
     joints, angles = _many_jit(anonymous, poses)
-    spherical = _seed001(anonymous)(joints)
+    spherical = _bone_descriptors_many(anonymous)(joints)
     spherical, angles = (np.asarray(a, float)[:, 1:] for a in (spherical, angles))
     phi, theta = unwrap_directions(spherical[..., 1], spherical[..., 0])
     spherical = np.stack([theta, phi, spherical[..., 2]], axis=-1)

@@ -75,10 +75,10 @@ def pose_from_joint_positions(
         A `Pose`; differentiable in the positions away from the poles of the sockets.
     """
     p = jnp.asarray(joint_positions)
-    return _pose_from_joints(body, p, whole_body_rotation(body, p), deviation)
+    return pose_from_joints(body, p, whole_body_rotation(body, p), deviation)
 
 
-def _pose_from_joints(
+def pose_from_joints(
     body: Body, p: Array, W: Array, deviation: Float[ArrayLike, " n_seg"] | None
 ) -> Pose:
     """`pose_from_joint_positions` given the whole body's world rotation W (twisted frame)."""

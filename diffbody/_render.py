@@ -1,14 +1,13 @@
 """Pictures of the sphere body: shaded spheres drawn back to front, like seed 000's
 displays, with matplotlib (orthographic views)."""
 
-import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 
 import equinox as eqx
 import numpy as np
 
-from ._body import Body, Pose
+from ._body import Body, Pose, without_names
 from ._kinematics import forward
 
 _forward_jit = eqx.filter_jit(forward)  # one compiled call (eagerly: hundreds of small ones)
@@ -44,7 +43,7 @@ def _region(segment: str) -> str:
     return "torso"
 
 
-def _camera(view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+def camera(view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """Unit vectors toward the camera, screen right and screen up, and a label."""
     if isinstance(view, str):
         if view not in VIEWS:
@@ -80,10 +79,10 @@ def draw(
 
     # The names are static fields but no input of the kinematics: without them, bodies of
     # one structure (scaled ones, say) share the compiled forward.
-    fk = _forward_jit(dataclasses.replace(body, name="", source=""), pose)
+    fk = _forward_jit(without_names(body), pose)
     centers = np.asarray(fk.sphere_centers, dtype=float)
     radii = np.asarray(fk.sphere_radii, dtype=float)
-    to_camera, right, up, label = _camera(view)
+    to_camera, right, up, label = camera(view)
     xy = np.stack([centers @ right, centers @ up], axis=-1)
     order = np.argsort(centers @ to_camera)  # far first (painter's algorithm)
     light = np.array([-0.4, 0.55])  # light from the upper left of the screen
@@ -131,7 +130,7 @@ def draw_cloud(
     from matplotlib.patches import Circle
 
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)
-    _, right, up, _ = _camera(view)
+    _, right, up, _ = camera(view)
     xy = np.stack([centers @ right, centers @ up], axis=-1)
     inliers = np.ones(len(radii), bool) if inliers is None else np.asarray(inliers, bool)
     color = np.where(inliers[:, None], [[0.1, 0.3, 0.9, 0.8]], [[0.9, 0.1, 0.1, 0.9]])

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 import diffbody as db
-from diffbody._anthropometry import scaled_body
-from diffbody._data_files import data_file
-from diffbody._measurements import geometry
-from diffbody._prior import ansur2_subjects
+from diffbody.anthropometry._measurements import geometry
+from diffbody.anthropometry._prior import ansur2_subjects
+from diffbody.anthropometry._scale_to import scaled_body
+from diffbody.files._data_files import data_file
 
 N = len(db.SCALE_GROUPS)
 FIVE = ("stature", "weightkg", "span", "sittingheight", "hipbreadth")
@@ -79,7 +79,7 @@ def test_measurement_gradients_match_finite_differences(male50):
 
 def test_measurements_are_piecewise_linear_in_the_scales(male50):
     """The property the fast solver rests on: lengths = A s within a piece, A the Jacobian."""
-    from diffbody._anthropometry import _lengths, _linear_model
+    from diffbody.anthropometry._scale_to import _lengths, _linear_model
 
     s = jnp.asarray(np.random.default_rng(1).uniform(0.95, 1.05, 2 * N))
     A = _linear_model(male50, s)
@@ -204,7 +204,7 @@ def test_scaling_keeps_symmetry_and_masses(male50):
 
 
 def test_the_scale_command(tmp_path, capsys):
-    from diffbody._cli import main
+    from diffbody.cli._main import main
 
     out = tmp_path / "person.json"
     argv = ["scale", "--sex", "female", "--stature", "1.65", "--weight", "60", "--out", str(out)]

@@ -9,7 +9,7 @@ import pytest
 from bodies import mini_doc
 
 import diffbody as db
-from diffbody._data_files import data_file
+from diffbody.files._data_files import data_file
 
 
 class _Missing:

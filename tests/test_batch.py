@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import diffbody as db
-from diffbody._batch import solve_reach_batch
+from diffbody.ik._reach_batch import solve_reach_batch
 
 CHUNK = 2  # every batch here compiles the same function once
 # The arm alone from one start: the batching is under test, not the solver (compiles fast).
@@ -69,7 +69,7 @@ def test_bad_input_is_rejected(male50):
 SHARDED = textwrap.dedent(
     """
     import json, jax, numpy as np, diffbody as db
-    from diffbody._batch import solve_reach_batch
+    from diffbody.ik._reach_batch import solve_reach_batch
     rows = np.asarray(json.loads(input()))
     arm = ("left_upper_arm", "left_forearm", "left_hand")
     out = solve_reach_batch(db.load_body(variant="male50"), ["left_hand.palm"], rows,

@@ -1,4 +1,4 @@
-"""The mocap command end to end (diffbody._cli.main called directly) on a short slice of the
+"""The mocap command end to end (diffbody.cli._main.main called directly) on a short slice of the
 shipped walking trial, and its errors on bad input."""
 
 import argparse
@@ -7,15 +7,15 @@ import inspect
 import numpy as np
 import pytest
 
-import diffbody._cli as cli
-from diffbody._cli_mocap import add_mocap_command
-from diffbody._data_files import data_file
-from diffbody._markers import read_trc, write_trc
+import diffbody.cli._main as cli
+from diffbody.cli._mocap import add_mocap_command
+from diffbody.files._data_files import data_file
+from diffbody.fitting._markers import read_trc, write_trc
 
 
 @pytest.fixture
 def main(monkeypatch):
-    """`diffbody._cli.main` with the mocap command: wired here, the way main() wires it,
+    """`diffbody.cli._main.main` with the mocap command: wired here, the way main() wires it,
     until _cli.py calls add_mocap_command itself."""
     if "add_mocap_command" not in inspect.getsource(cli):
         add_subparsers = argparse.ArgumentParser.add_subparsers

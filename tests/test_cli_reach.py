@@ -1,4 +1,4 @@
-"""The reach and batch commands (diffbody._cli.main called directly)."""
+"""The reach and batch commands (diffbody.cli._main.main called directly)."""
 
 import csv
 import json
@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from diffbody._cli import main
+from diffbody.cli._main import main
 
 
 def test_reach_command(tmp_path, capsys):
@@ -65,7 +65,7 @@ def test_batch_bad_input_exits_2(tmp_path, capsys, content, effectors, message):
     assert message in err
 
 
-CACHE_DIR = "import jax; from diffbody._cli import keep_compiled; keep_compiled(); "
+CACHE_DIR = "import jax; from diffbody.cli._main import keep_compiled; keep_compiled(); "
 CACHE_DIR += "print(jax.config.jax_compilation_cache_dir)"
 
 

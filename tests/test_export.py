@@ -1,5 +1,5 @@
-"""Exporters (diffbody._mjcf, diffbody._urdf) against MuJoCo itself and an independent NumPy
-URDF reader.
+"""Exporters (diffbody.export: MJCF and URDF) against MuJoCo itself and an independent
+NumPy URDF reader.
 
 References: MuJoCo's own kinematics (`mj_kinematics`) on the exported MJCF, and a URDF forward
 kinematics written here from the URDF specification (origin xyz, rpy = Rz(yaw) Ry(pitch)
@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 import diffbody as db
-from diffbody._mjcf import _quat, export_mjcf, mujoco_joint_names, mujoco_qpos
-from diffbody._rigid_links import TINY_MASS
-from diffbody._urdf import _rpy, export_urdf, urdf_joint_values
+from diffbody.export._mjcf import _quat, export_mjcf, mujoco_joint_names, mujoco_qpos
+from diffbody.export._rigid_links import TINY_MASS
+from diffbody.export._urdf import _rpy, export_urdf, urdf_joint_values
 
 TOL = 1e-9
 CHAIN = ("left_clavicle", "left_hand")

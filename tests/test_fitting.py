@@ -1,4 +1,4 @@
-"""Fitting dimensions and posture to measured sphere clouds (diffbody._fitting)."""
+"""Fitting dimensions and posture to measured sphere clouds (diffbody.fitting._sphere_fit)."""
 
 import json
 
@@ -10,9 +10,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import diffbody as db
-from diffbody._cli import main
-from diffbody._fitting import softassign, squared_distances
-from diffbody._scaling import per_segment
+from diffbody.anthropometry._scaling import per_segment
+from diffbody.cli._main import main
+from diffbody.fitting._sphere_fit import softassign, squared_distances
 
 
 def scaled_person(body, key, spread=0.05):

@@ -16,8 +16,8 @@ from hypothesis import given
 
 import diffbody as db
 from diffbody._body import rest_geometry
-from diffbody._data_files import data_file
-from diffbody._markers import (
+from diffbody.files._data_files import data_file
+from diffbody.fitting._markers import (
     LAB_AXES,
     MarkerFileError,
     MarkerTrial,
@@ -26,7 +26,7 @@ from diffbody._markers import (
     read_trc,
     write_trc,
 )
-from diffbody._markerset import (
+from diffbody.fitting._markerset import (
     MarkerSet,
     MarkerWarning,
     load_markerset,

@@ -1,5 +1,5 @@
 """Motion capture: scaling and registration on a static trial, the posture of every frame,
-and the bone descriptors over time (diffbody._mocap, diffbody._descriptors).
+and the bone descriptors over time (diffbody.fitting._mocap, diffbody._descriptors).
 
 The synthetic subject is the male median body scaled by known axial factors, with the
 shipped marker set carried to it (`scale_offsets`), posed by known free vectors; its
@@ -16,18 +16,20 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import diffbody as db
-from diffbody._anthropometry import LENGTHS, _linear_model_jit
 from diffbody._descriptors import descriptors, unwrap_directions
-from diffbody._marker_kernel import (
+from diffbody._rotations import exp_rotvec
+from diffbody.anthropometry._scale_to import LENGTHS, linear_model_jit
+from diffbody.anthropometry._scaling import SCALE_GROUPS, per_segment
+from diffbody.fitting._marker_points import (
     _walk_markers,
     mocap_layout,
     rigid_fit,
     rotation_vector,
     tree_markers,
 )
-from diffbody._markers import MarkerTrial
-from diffbody._markerset import MarkerWarning, load_markerset, scale_offsets, world_markers
-from diffbody._mocap import (
+from diffbody.fitting._markers import MarkerTrial
+from diffbody.fitting._markerset import MarkerWarning, load_markerset, scale_offsets, world_markers
+from diffbody.fitting._mocap import (
     MIN_MARKERS,
     N_GROUPS,
     PRIOR_MEASUREMENTS,
@@ -36,9 +38,7 @@ from diffbody._mocap import (
     population_prior,
     scale_and_register,
 )
-from diffbody._problem import make_problem
-from diffbody._rotations import exp_rotvec
-from diffbody._scaling import SCALE_GROUPS, per_segment
+from diffbody.ik._problem import make_problem
 
 N_FRAMES = 4
 NOISE = 0.005  # m, per coordinate
@@ -149,7 +149,7 @@ def test_prior_measurements_are_lengths(male50):
     """The prior's measurements are decided by the axial factors (at least 80 % of each,
     the rest being sphere radii at an extent), and its linear model reproduces `measure`
     on a scaled body exactly (the measurements are linear within a piece)."""
-    A = np.asarray(_linear_model_jit(male50, jnp.ones(2 * N_GROUPS)))
+    A = np.asarray(linear_model_jit(male50, jnp.ones(2 * N_GROUPS)))
     rows = A[[LENGTHS.index(n) for n in PRIOR_MEASUREMENTS]]
     assert np.all(rows[:, :N_GROUPS].sum(1) >= 0.8 * rows.sum(1))
     prior = population_prior(True, male50, None, ("lengths", "offsets"))

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import diffbody as db
-from diffbody._cli import main
+from diffbody.cli._main import main
 
 
 def _image(path):

@@ -13,18 +13,18 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from diffbody._cli_webb import add_webb_command
-from diffbody._joint_tree import (
+from diffbody.cli._webb import add_webb_command
+from diffbody.files._body_file import data_file
+from diffbody.images._joint_tree import (
     JointTree,
     default_joint_tree,
     hinge_limits,
     read_joint_tree,
     write_joint_tree,
 )
-from diffbody._loading import data_file
-from diffbody._motions import walking_motion
-from diffbody._pinhole import camera_around, image_sequence, project, to_camera
-from diffbody._webb import (
+from diffbody.images._motions import walking_motion
+from diffbody.images._pinhole import camera_around, image_sequence, project, to_camera
+from diffbody.images._webb import (
     FAR,
     MISSED,
     NEAR,
@@ -192,7 +192,7 @@ def test_lengths_gradient_matches_finite_differences(tree, male50):
     """d lengths / d image points through the scan: jacfwd = jacrev = central differences
     (the bounds are maxima over frames, differentiable where the maximising frame is
     unique)."""
-    from diffbody._webb import webb_kernel
+    from diffbody.images._webb import webb_kernel
 
     world = walking_motion(male50, tree, 6)
     seq = image_sequence(tree, camera_around([0, 0, 1], 3.0, 30.0, 1.2, F), world)
@@ -241,7 +241,7 @@ def test_bad_depth_and_focal_are_refused(tree):
 
 
 def test_depth_checked_inside_jit(tree):
-    from diffbody._webb import _webb_jit
+    from diffbody.images._webb import _webb_jit
 
     uv = jnp.zeros((3, tree.n_joints, 2))
     with pytest.raises(Exception, match="reference depth must be > 0"):

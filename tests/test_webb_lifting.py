@@ -10,14 +10,14 @@ import lineax as lx
 import numpy as np
 import pytest
 
-from diffbody._banded import BandedSchurCholesky, FrameResiduals, FrameUnknowns
-from diffbody._joint_centres import NAMES, joint_centres_from_markers, load_walk_joints
-from diffbody._joint_tree import default_joint_tree
-from diffbody._lifting import LiftOptions, LiftStatus, lift
-from diffbody._motions import walking_motion
-from diffbody._pinhole import camera_around, image_sequence, project
-from diffbody._reflections import choose_reflections
-from diffbody._webb import NEAR, true_reflections
+from diffbody.images._banded import BandedSchurCholesky, FrameResiduals, FrameUnknowns
+from diffbody.images._joint_centres import NAMES, joint_centres_from_markers, load_walk_joints
+from diffbody.images._joint_tree import default_joint_tree
+from diffbody.images._lifting import LiftOptions, LiftStatus, lift
+from diffbody.images._motions import walking_motion
+from diffbody.images._pinhole import camera_around, image_sequence, project
+from diffbody.images._reflections import choose_reflections
+from diffbody.images._webb import NEAR, true_reflections
 
 F = 1000.0
 
@@ -121,7 +121,7 @@ def test_robust_loss_resists_wrong_detections(tree, noisy_walk):
 def test_refinement_failure_is_a_status(tree, noisy_walk):
     """A start far off (every part 5 m long) ends as a status with finite numbers."""
     seq, _ = noisy_walk
-    from diffbody._lifting import refine
+    from diffbody.images._lifting import refine
 
     start = np.array(seq.joints)
     out = refine(
@@ -190,7 +190,7 @@ def test_banded_solver_matches_dense_least_squares():
 def test_residual_derivatives(tree, noisy_walk):
     """The refinement's residuals: jacfwd = jacrev = central differences, at a point away
     from the start, with the hinge rows on."""
-    from diffbody import _lifting
+    from diffbody.images import _lifting
 
     seq, lengths = noisy_walk
     T = 6
@@ -245,7 +245,7 @@ def test_semi_real_walk_joints(tree):
     root = Path(__file__).resolve().parent.parent / "data" / "mocap"
     if not (root / "subject01_walk1.trc").exists():
         pytest.skip("data/mocap is not in this checkout")
-    from diffbody._markers import read_trc
+    from diffbody.fitting._markers import read_trc
 
     fresh = joint_centres_from_markers(
         read_trc(root / "subject01_walk1.trc"), read_trc(root / "subject01_static.trc")

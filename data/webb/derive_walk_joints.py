@@ -8,7 +8,6 @@ Run from the repository root: python data/webb/derive_walk_joints.py
 from pathlib import Path
 
 import numpy as np
-
 from diffbody._joint_centres import NAMES, joint_centres_from_markers
 from diffbody._markers import read_trc
 

@@ -1,0 +1,228 @@
+"""The `diffbody mocap` command: scale and register the body on a static marker trial, fit
+every frame of a motion trial, write the fit (.npz), the scaled body and a picture.
+
+    diffbody mocap static.trc walk.trc --markerset opensim-gait --out fit.npz --png fit.png
+"""
+
+import dataclasses
+import os
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+PICTURE_FRAMES = 4  # frames drawn in the PNG, evenly over the trial
+
+
+def add_mocap_command(sub) -> None:
+    """Add the `mocap` subcommand to the `diffbody` command line's subparsers."""
+    # Imported here, not at the top: `_cli` may import this module while it loads.
+    from ._main import finite_float
+
+    p = sub.add_parser(
+        "mocap",
+        help="scale the body on a static marker trial and fit every frame of a motion (TRC/C3D)",
+        description="Scales and registers the body (segment lengths, posture, marker offsets) "
+        "on the static trial, then fits the posture of every frame of the motion trial to its "
+        "markers. Marker files: .trc (units from the header) or .c3d (needs ezc3d).",
+    )
+    p.add_argument("--variant", default="male50", help="embedded body: male50 or female50")
+    p.add_argument("--body", default=None, help="a body JSON file instead (data/SCHEMA.md)")
+    p.add_argument("static", help="static trial: the subject standing still (.trc or .c3d)")
+    p.add_argument("motion", help="trial to fit, frame by frame (.trc or .c3d)")
+    p.add_argument(
+        "--markerset",
+        default="opensim-gait",
+        help="marker set: a shipped name (opensim-gait) or a JSON file (data/markersets/)",
+    )
+    p.add_argument(
+        "--axes",
+        default="opensim",
+        help="the lab's axes in the files: opensim (Y up, X forward, Z right) or z-up "
+        "(X forward, Y left, Z up)",
+    )
+    p.add_argument(
+        "--no-prior",
+        action="store_true",
+        help="scale on the markers alone, without the ANSUR II population prior on the "
+        "body's proportions",
+    )
+    p.add_argument(
+        "--time",
+        nargs=2,
+        type=finite_float,
+        default=None,
+        metavar=("T0", "T1"),
+        help="fit only the frames with T0 <= time <= T1 (s)",
+    )
+    p.add_argument("--out", default="fit.npz", help="fit to write (.npz, default fit.npz)")
+    p.add_argument("--png", default=None, help="PNG of a few fitted frames with their markers")
+    p.set_defaults(run=_mocap)
+
+
+def _axes(text: str):
+    from ..fitting._markers import LAB_AXES
+
+    if text not in LAB_AXES:
+        raise ValueError(f"--axes {text}: unknown lab axes; use one of {', '.join(LAB_AXES)}")
+    return text
+
+
+def _noted(fn, *args, **kwargs):
+    """fn's result; its warnings (markers one file has and the other lacks) printed as
+    notes, one line each, instead of Python's warning format."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = fn(*args, **kwargs)
+    for w in caught:
+        print(f"note: {w.message}")
+    return out
+
+
+def _mocap(args) -> int:
+    import jax
+
+    from ..anthropometry._scaling import SCALE_GROUPS
+    from ..files._saving import save_body
+    from ..fitting._markers import read_markers
+    from ..fitting._markerset import load_markerset, match_markers
+    from ..fitting._mocap import fit_motion, scale_and_register
+    from ..fitting._sphere_fit import FitStatus
+    from ._main import body_from_args, check_output
+
+    check_output("--out", args.out)
+    check_output("--png", args.png)
+    if not args.out.endswith(".npz"):
+        raise ValueError(f"--out {args.out}: the fit is a NumPy archive; give a .npz file name")
+    axes = _axes(args.axes)
+    # The files before the body: a malformed marker file is told in milliseconds.
+    static = read_markers(args.static, axes=axes)
+    motion = read_markers(args.motion, axes=axes)
+    if args.time is not None:
+        whole, motion = motion, motion.between(*args.time)
+        if len(motion.times) == 0:
+            raise ValueError(
+                f"--time {args.time[0]:g} {args.time[1]:g}: no frame of {args.motion} in that "
+                f"range; its frames run {whole.times[0]:.3f}-{whole.times[-1]:.3f} s"
+            )
+    body = body_from_args(args)
+    markerset = _noted(load_markerset, args.markerset, body)
+
+    t0 = time.perf_counter()
+    static_fit = _noted(scale_and_register, body, static, markerset, prior=not args.no_prior)
+    jax.block_until_ready(static_fit)
+    scale_s = time.perf_counter() - t0
+    registered, trial = _noted(match_markers, static_fit.markerset, motion)
+    t0 = time.perf_counter()
+    out = fit_motion(static_fit.body, registered, trial, start=static_fit.pose, progress=True)
+    fit_s = time.perf_counter() - t0
+
+    scaled = dataclasses.replace(static_fit.body, name=f"{body.name}-mocap")
+    out_path = Path(args.out)
+    body_path = save_body(scaled, out_path.with_name(f"{out_path.stem}.body.json"))
+    poses = out.poses
+    spine = poses.spine_target
+    per_marker = out.per_marker()
+    np.savez(
+        out_path,
+        times=np.asarray(out.times),
+        angles=np.asarray(poses.angles),  # (n_frames, n_seg, 3) theta, phi, tau in rad
+        position=np.asarray(poses.position),  # (n_frames, 3) m, the root joint
+        spine_target=np.full((len(out.times), 3), np.nan) if spine is None else np.asarray(spine),
+        segment_names=np.asarray(body.segment_names),
+        marker_names=np.asarray(out.names),
+        marker_kinds=np.asarray(out.kinds),
+        model_markers=np.asarray(out.markers),  # (n_frames, n_markers, 3) m, world
+        measured_markers=np.asarray(trial.positions),
+        errors=np.asarray(out.errors),  # (n_frames, n_markers) m, NaN where missing
+        rms=np.asarray(out.rms),
+        max=np.asarray(out.max),
+        status=np.asarray(out.status),
+        marker_rms=np.asarray([per_marker[n][0] for n in out.names]),
+        marker_max=np.asarray([per_marker[n][1] for n in out.names]),
+        scale_groups=np.asarray(SCALE_GROUPS),
+        axial=np.asarray(static_fit.axial),
+        static_marker_names=np.asarray(static_fit.markerset.names),
+        static_errors=np.asarray(static_fit.errors),
+    )
+
+    rms = np.asarray(out.rms)
+    status = np.asarray(out.status)
+    converged = int(np.sum(status == FitStatus.CONVERGED))
+    worst_frame = int(np.nanargmax(rms))
+    worst = max(per_marker, key=lambda k: per_marker[k][0])
+    static_rms = float(np.sqrt(np.mean(np.asarray(static_fit.errors) ** 2)))
+    print(
+        f"{args.static}: {len(static.names)} markers; scaled and registered in {scale_s:.1f} s, "
+        f"marker RMS {100 * static_rms:.2f} cm"
+    )
+    print(
+        f"{args.motion}: {len(out.times)} frames, {len(out.names)} markers fitted "
+        f"in {fit_s:.1f} s ({len(out.times) / fit_s:.3g} frames/s), "
+        f"{converged} of {len(out.times)} frames converged"
+    )
+    print(
+        f"marker RMS: mean {100 * np.nanmean(rms):.2f} cm, max {100 * rms[worst_frame]:.2f} cm "
+        f"(t = {float(out.times[worst_frame]):.3f} s); largest marker error "
+        f"{100 * np.nanmax(np.asarray(out.max)):.2f} cm"
+    )
+    print(
+        f"worst marker: {worst} (RMS {100 * per_marker[worst][0]:.2f} cm, "
+        f"max {100 * per_marker[worst][1]:.2f} cm over the frames)"
+    )
+    spine_path = f" and {body_path.stem}.spine.json" if scaled.spine is not None else ""
+    print(f"wrote {out_path} (the fit) and {body_path}{spine_path} (the scaled body)")
+    if args.png:
+        picture(scaled, out, trial.positions, args.png, os.path.basename(args.motion))
+        print(f"wrote {args.png}")
+    return 1 if np.any(status == FitStatus.FAILED) else 0
+
+
+def draw_markers(ax, points, view="left", **style) -> None:
+    """Scatter world points (n, 3) m over a `diffbody.draw`n body, in the same projection;
+    NaN rows (missing markers) are skipped."""
+    from .._render import camera
+
+    points = np.asarray(points, float)
+    points = points[np.all(np.isfinite(points), axis=1)]
+    _, right, up, _ = camera(view)
+    ax.scatter(points @ right, points @ up, zorder=5, **style)
+
+
+def picture(body, fit, measured, path, title: str, view="left") -> Path:
+    """A PNG of a few frames of a motion fit: the sphere body, the measured markers (blue
+    rings) and the model's (red dots)."""
+    import jax
+    import jax.numpy as jnp
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    from .._render import draw
+
+    n = len(fit.times)
+    frames = np.unique(np.linspace(0, n - 1, min(PICTURE_FRAMES, n)).round().astype(int))
+    fig, axes = plt.subplots(1, len(frames), figsize=(3.0 * len(frames), 5.0), squeeze=False)
+    for ax, i in zip(axes[0], frames):
+        pose = jax.tree.map(lambda a: jnp.asarray(a[i]), fit.poses)
+        draw(ax, body, pose, view)
+        draw_markers(ax, measured[i], view, s=28, facecolors="none", edgecolors="tab:blue", lw=1)
+        draw_markers(ax, fit.markers[i], view, s=6, color="crimson")
+        ax.set_title(
+            f"t = {float(fit.times[i]):.2f} s, RMS {100 * float(fit.rms[i]):.1f} cm", fontsize=9
+        )
+    # One scale for every panel: the widest panel's width, the tallest one's height.
+    width = max(np.diff(ax.get_xlim())[0] for ax in axes[0])
+    top = max(ax.get_ylim()[1] for ax in axes[0])
+    for ax in axes[0]:
+        middle = np.mean(ax.get_xlim())
+        ax.set_xlim(middle - width / 2, middle + width / 2)
+        ax.set_ylim(min(ax.get_ylim()[0], -0.05), top)
+    fig.suptitle(f"diffbody mocap: {title} (measured markers: rings; model: dots)", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,264 @@
+"""`diffbody webb`: lengths and 3D joints of a jointed figure from its 2D joint positions in
+a sequence of images (seed 003, Webb's static analysis, with reflections chosen by
+continuity and a joint least-squares refinement).
+
+Input files:
+
+- points CSV: one row per frame; a header names the columns ``<joint>.u`` and
+  ``<joint>.v`` for every joint of the skeleton (any order; other columns are refused);
+  pixels from the principal point, v pointing down (or raw pixel coordinates with
+  ``--principal-point CX CY``);
+- root-depth CSV: one number per row (an optional header line), the reference joint's
+  depth in metres in each frame: as many rows as the points file;
+- skeleton JSON (``--skeleton``, default the body's major joints): see
+  `diffbody.read_joint_tree`.
+
+Output: ``--out`` JSON with the lengths per part (refined, and Webb's lower bounds), the 3D
+joints per frame (camera frame: x right, y down, z along the optical axis, m), the
+reflection of every part in every frame (0 near, 1 far) and the refinement's status;
+``--png`` the recovered skeleton over the image points.
+"""
+
+import argparse
+import csv
+import io
+import math
+from pathlib import Path
+
+from ._main import check_output, positive_float
+
+
+def _pixel(text: str) -> float:
+    """argparse type: a finite number of pixels."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number of pixels, got {text!r}")
+    return value
+
+
+def _text(path: str, what: str) -> str:
+    p = Path(path)
+    if p.is_dir():
+        raise ValueError(f"{path}: is a directory; expected a CSV file of {what}")
+    data = p.read_bytes()
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = data[: e.start].count(b"\n") + 1
+        raise ValueError(
+            f"{path}: row {line}: not UTF-8 text; save the {what} as a UTF-8 CSV"
+        ) from None
+
+
+def _number(path: str, line: int, col: int, cell: str) -> float:
+    try:
+        v = float(cell)
+    except ValueError:
+        raise ValueError(f"{path}: row {line}, column {col}: not a number: {cell!r}") from None
+    if not math.isfinite(v):
+        raise ValueError(f"{path}: row {line}, column {col}: not a finite number: {cell!r}")
+    return v
+
+
+def read_points(path: str, names: tuple[str, ...]):
+    """(T, J, 2) px from a points CSV (module docstring), columns matched by name."""
+    import numpy as np
+
+    text = _text(path, "image points")
+    reader = csv.reader(io.StringIO(text, newline=""))
+    rows = [(reader.line_num, [c.strip() for c in row]) for row in reader]
+    rows = [(n, r) for n, r in rows if r and any(r)]
+    example = ",".join(f"{n}.u,{n}.v" for n in names[:2]) + ",..."
+    if not rows:
+        raise ValueError(f"{path}: empty; expected a header ({example}) and one row per frame")
+    line, header = rows[0]
+    if any(";" in c or "\t" in c for c in header):
+        raise ValueError(
+            f"{path}: row {line}: columns are separated by commas, not semicolons or tabs"
+        )
+    wanted = {f"{n}.{c}": (j, k) for j, n in enumerate(names) for k, c in enumerate("uv")}
+    for col, cell in enumerate(header, start=1):
+        if cell not in wanted:
+            try:
+                float(cell)
+                why = "the first row must be a header naming the columns"
+            except ValueError:
+                why = "no such joint coordinate in the skeleton"
+            raise ValueError(f"{path}: row {line}, column {col}: {cell!r}: {why} ({example})")
+    if len(set(header)) != len(header):
+        twice = next(c for c in header if header.count(c) > 1)
+        raise ValueError(f"{path}: row {line}: column {twice!r} is given twice")
+    missing = [c for c in wanted if c not in header]
+    if missing:
+        raise ValueError(
+            f"{path}: row {line}: no column {missing[0]!r}; every joint needs .u and .v"
+        )
+    if len(rows) < 2:
+        raise ValueError(f"{path}: a header but no frames")
+    out = np.zeros((len(rows) - 1, len(names), 2))
+    for i, (line, row) in enumerate(rows[1:]):
+        if len(row) != len(header):
+            raise ValueError(
+                f"{path}: row {line}, column {min(len(row), len(header)) + 1}: expected "
+                f"{len(header)} columns, got {len(row)}"
+            )
+        for col, (name, cell) in enumerate(zip(header, row), start=1):
+            j, k = wanted[name]
+            out[i, j, k] = _number(path, line, col, cell)
+    return out
+
+
+def read_depths(path: str, n_frames: int):
+    """(T,) m from a root-depth CSV: one number > 0 per row, an optional header."""
+    import numpy as np
+
+    text = _text(path, "depths")
+    reader = csv.reader(io.StringIO(text, newline=""))
+    values = []
+    for row in reader:
+        line = reader.line_num
+        cells = [c.strip() for c in row if c.strip()]
+        if not cells:
+            continue
+        if len(cells) != 1:
+            raise ValueError(
+                f"{path}: row {line}: expected one depth (m) per row, got {len(cells)} cells"
+            )
+        try:
+            v = float(cells[0])
+        except ValueError:
+            if not values and line == 1:
+                continue  # a header
+            raise ValueError(f"{path}: row {line}, column 1: not a number: {cells[0]!r}") from None
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(
+                f"{path}: row {line}, column 1: depth {cells[0]!r} must be a finite number > 0 "
+                "(m; the reference joint lies in front of the camera)"
+            )
+        values.append(v)
+    if len(values) != n_frames:
+        raise ValueError(
+            f"{path}: {len(values)} depths for {n_frames} frames of image points; "
+            "give one per frame"
+        )
+    return np.asarray(values)
+
+
+def _webb(args) -> int:
+    import json
+
+    import numpy as np
+
+    from ..images._joint_tree import default_joint_tree, read_joint_tree
+    from ..images._lifting import LiftOptions, LiftStatus, lift
+    from ..images._reflections import choose_reflections
+
+    check_output("--out", args.out)
+    check_output("--png", args.png)
+    tree = read_joint_tree(args.skeleton) if args.skeleton else default_joint_tree()
+    uv = read_points(args.points, tree.names)
+    if args.principal_point is not None:
+        uv = uv - np.asarray(args.principal_point)
+    depth = read_depths(args.root_depth, len(uv))
+    if len(uv) < 3:
+        raise ValueError(f"{args.points}: {len(uv)} frames; the analysis needs at least 3")
+    if args.no_refine:
+        choice, lifted = choose_reflections(tree, uv, depth, args.focal), None
+    else:
+        options = LiftOptions(pixel_sigma=args.pixel_sigma)
+        choice, lifted = lift(tree, uv, depth, args.focal, options=options)
+    webb_lengths = np.asarray(choice.lengths)
+    if lifted is None:
+        lengths, joints, status = webb_lengths, np.asarray(choice.joints), None
+    else:
+        lengths, joints = np.asarray(lifted.lengths), np.asarray(lifted.joints)
+        status = LiftStatus(int(lifted.status))
+    print(f"{len(uv)} frames, {tree.n_parts} parts, reference {tree.names[tree.root]!r}")
+    print(f"{'part':<34} {'Webb (m)':>9} {'refined (m)':>12}")
+    for k, name in enumerate(tree.part_names):
+        refined = "" if args.no_refine else f"{float(lifted.lengths[k]):12.4f}"
+        print(f"{name:<34} {webb_lengths[k]:9.4f} {refined}")
+    if status is not None:
+        print(
+            f"refinement: {status.describe()} after {int(lifted.steps)} steps, "
+            f"reprojection RMS {float(lifted.reprojection_rms):.2f} px"
+        )
+    if args.out:
+        doc = {
+            "skeleton": [
+                {"name": n, "parent": None if p == -1 else tree.names[p]}
+                for n, p in zip(tree.names, tree.parents)
+            ],
+            "parts": list(tree.part_names),
+            "focal_px": args.focal,
+            "frames": len(uv),
+            "lengths_m": {n: float(v) for n, v in zip(tree.part_names, lengths)},
+            "webb_lengths_m": {n: float(v) for n, v in zip(tree.part_names, webb_lengths)},
+            "joints_m": np.round(joints, 6).tolist(),
+            "joints_frame": "camera: x right, y down, z along the optical axis",
+            "reflections": np.asarray(choice.reflections).tolist(),
+            "reflection_codes": {"0": "near (toward the camera)", "1": "far"},
+            "refined": not args.no_refine,
+            "status": None if status is None else status.name.lower(),
+            "reprojection_rms_px": None if args.no_refine else float(lifted.reprojection_rms),
+        }
+        with open(args.out, "w") as f:
+            json.dump(doc, f, indent=1)
+        print(f"wrote {args.out}")
+    if args.png:
+        from ..images._sequence_plots import draw_lifting
+
+        draw_lifting(
+            tree,
+            uv,
+            joints,
+            args.focal,
+            args.png,
+            title=f"diffbody webb: {Path(args.points).name}"
+            + ("" if args.no_refine else " (refined)"),
+        )
+        print(f"wrote {args.png}")
+    return 0
+
+
+def add_webb_command(sub) -> None:
+    """Add the `webb` subcommand to the argparse subparsers of `diffbody._cli.main`."""
+    p = sub.add_parser(
+        "webb",
+        help="lengths and 3D joints from 2D joint positions in an image sequence (seed 003)",
+        description=(
+            "Webb's static analysis: rigid-part lengths and 3D joints from the image points of "
+            "every joint in every frame, the focal length and the reference joint's depth; "
+            "reflections chosen by continuity, then refined by least squares. Points CSV: a "
+            "header <joint>.u,<joint>.v for every joint, one row per frame, pixels from the "
+            "principal point, v down."
+        ),
+    )
+    p.add_argument(
+        "points", help="CSV of image points: <joint>.u,<joint>.v per joint, a row per frame"
+    )
+    p.add_argument("--focal", type=positive_float, required=True, help="focal length (px)")
+    p.add_argument(
+        "--root-depth", required=True, help="CSV: the reference joint's depth (m), a row per frame"
+    )
+    p.add_argument(
+        "--skeleton", default=None, help="skeleton JSON (default: the body's major joints)"
+    )
+    p.add_argument(
+        "--principal-point",
+        nargs=2,
+        type=_pixel,
+        default=None,
+        metavar=("CX", "CY"),
+        help="subtract this from the points (raw pixel coordinates)",
+    )
+    p.add_argument(
+        "--pixel-sigma", type=positive_float, default=1.0, help="image noise (px, default 1)"
+    )
+    p.add_argument("--no-refine", action="store_true", help="Webb's estimate only")
+    p.add_argument("--out", default="lengths.json", help="JSON to write (default lengths.json)")
+    p.add_argument("--png", default=None, help="PNG of the skeleton over the image points")
+    p.set_defaults(run=_webb)

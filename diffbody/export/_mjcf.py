@@ -1,0 +1,219 @@
+"""MuJoCo MJCF export: a body as an MJCF model (`export_mjcf`) and a pose as its qpos
+(`mujoco_qpos`, `mujoco_joint_names`). The rigid-link conventions, and what they cannot say
+of a diffbody body, are in `_rigid_links`.
+"""
+
+import math
+import os
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._body import Body, Pose
+from ._rigid_links import (
+    HINGE_AXES,
+    HINGES,
+    SPHERE_RGBA,
+    Geometry,
+    joint_values_batch,
+    write_xml,
+    xml_numbers,
+)
+
+SLIDE_AXES = ("x", "y", "z")  # MJCF: whole_body_x, whole_body_y, whole_body_z
+ARMATURE = 1e-3  # kg m^2, MJCF joints: keeps MuJoCo's mass matrix regular at the poles
+SITE_RGBA = (0.8, 0.1, 0.1, 1.0)
+SITE_SIZE = 0.005  # m
+
+
+def _depth_first(body: Body) -> list[int]:
+    """Segments in depth-first pre-order, children in index order: the order of the nested
+    MJCF bodies, hence of MuJoCo's joints and qpos."""
+    order, stack = [], [0]
+    while stack:
+        i = stack.pop()
+        order.append(i)
+        stack.extend(k for k in reversed(range(body.n_segments)) if body.parent[k] == i)
+    return order
+
+
+def mujoco_joint_names(body: Body) -> tuple[str, ...]:
+    """Names of the joints of `export_mjcf`'s file in qpos order (one qpos entry each):
+    whole_body_x, _y, _z, then {seg}_theta, {seg}_phi, {seg}_twist for the segments in
+    depth-first order (the nesting of the file's bodies), starting with whole_body."""
+    names = [f"{body.segment_names[0]}_{ax}" for ax in SLIDE_AXES]
+    for i in _depth_first(body):
+        names += [f"{body.segment_names[i]}_{hinge}" for hinge in HINGES]
+    return tuple(names)
+
+
+def mujoco_qpos(body: Body, pose: Pose) -> np.ndarray:
+    """MuJoCo `qpos` of a pose, in the joint order of `export_mjcf`'s file.
+
+    qpos = (x, y, z of the whole body's proximal joint, then for every segment: theta, phi,
+    s(theta, phi) + tau), s the standard twist, so that MuJoCo's Rz(theta) Ry(phi) Rz(twist)
+    is diffbody's segment frame; angles as given, not wrapped (the hinges are unlimited).
+    MuJoCo orders joints as the file nests its bodies, so the segments come depth first
+    (whole_body, pelvis, L5, L4, ..., then the legs), not in `body.segment_names` order:
+    `mujoco_joint_names` names every entry. For a body with its default root the position
+    is `pose.position`; for a re-rooted body (`Body.with_root`) the whole body's position
+    and hinges are its proximal joint and twisted frame in `forward`. For a pose with a
+    spine target, the segments the spine moves get the ZYZ angles of their frames in
+    `forward` (their pose rows are not used). Computed with JAX (float64 if x64 is on),
+    returned as NumPy.
+
+    Args:
+        body: the body the file was exported from.
+        pose: a `Pose`; its arrays may carry the same leading batch axes, e.g. angles
+            (..., n_seg, 3) with position (..., 3).
+
+    Returns:
+        array (..., 3 + 3 n_seg): nq of the exported model, MuJoCo's joint order.
+    """
+    angles = jnp.asarray(pose.angles)
+    batch = angles.shape[:-2]
+    position = jnp.asarray(pose.position)
+    if angles.shape[-2:] != (body.n_segments, 3) or position.shape != batch + (3,):
+        raise ValueError(
+            f"mujoco_qpos: expected angles (..., {body.n_segments}, 3) and position (..., 3) "
+            f"with the same leading axes, got {angles.shape} and {position.shape}"
+        )
+    flat = jax.tree.map(lambda x: jnp.reshape(x, (-1, *jnp.shape(x)[len(batch) :])), pose)
+    position, hinges = joint_values_batch(body, flat)
+    hinges = np.asarray(hinges)[:, np.asarray(_depth_first(body))]
+    q = np.concatenate([np.asarray(position), hinges.reshape(len(hinges), -1)], axis=-1)
+    return q.reshape(batch + (q.shape[-1],))
+
+
+def _quat(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of a rotation matrix (Shepperd's method)."""
+    t = np.trace(R)
+    k = int(np.argmax([t, R[0, 0], R[1, 1], R[2, 2]]))
+    if k == 0:
+        w = math.sqrt(1.0 + t) / 2.0
+        q = [
+            w,
+            (R[2, 1] - R[1, 2]) / (4 * w),
+            (R[0, 2] - R[2, 0]) / (4 * w),
+            (R[1, 0] - R[0, 1]) / (4 * w),
+        ]
+    else:
+        i, j, m = k - 1, k % 3, (k + 1) % 3
+        v = [0.0, 0.0, 0.0]
+        v[i] = math.sqrt(max(1.0 + 2 * R[i, i] - t, 0.0)) / 2.0
+        v[j] = (R[j, i] + R[i, j]) / (4 * v[i])
+        v[m] = (R[m, i] + R[i, m]) / (4 * v[i])
+        q = [(R[m, j] - R[j, m]) / (4 * v[i]), *v]
+    q = np.asarray(q)
+    return q / np.linalg.norm(q) * (1.0 if q[0] >= 0 else -1.0)
+
+
+def export_mjcf(body: Body, path: str | os.PathLike) -> Path:
+    """Write the body as a MuJoCo MJCF model (DESIGN section 2 as rigid links).
+
+    The file, and what it holds:
+
+    - One `<body>` per segment, named after it, nested as the segment tree. Its frame is the
+      segment's *socket* frame placed at the parent's distal joint: pos = (0, 0, L_parent)
+      in the parent's twisted frame, quat = R_parent_socket. The whole body hangs from the
+      world at the origin (quat = its R_parent_socket).
+    - Joints, in `mujoco_qpos` order: the whole body's slides `whole_body_x`, `_y`, `_z`
+      along the world axes, then for every segment (whole body included) the hinges
+      `{seg}_theta` (axis z), `{seg}_phi` (axis y), `{seg}_twist` (axis z). MuJoCo composes
+      them as Rz(theta) Ry(phi) Rz(twist) with twist = s(theta, phi) + tau, so each body's
+      `xpos` is the segment's proximal joint and its `xmat` the twisted frame
+      `forward(...).R_world_twisted`. Hinges are unlimited: diffbody's limits live in swing
+      space, not in (theta, phi); check poses with `diffbody.within_limits`.
+    - Surface spheres as `<geom type="sphere">` named `{seg}_sphere_{k}` (k the index in
+      `body.sphere_*`), in the twisted frame: they turn with the full twist, where diffbody
+      turns them by tau * z / length (partial twist propagation is not representable in a
+      rigid body), so they match `forward`'s sphere centres when tau = 0.
+    - `<site>`s for the features, named as in `body.feature_names` ("left_hand.palm": MuJoCo
+      accepts dots), at origin + radius * direction in the twisted frame (same caveat), and
+      for each segment's distal joint, named after the joint ("left_wrist"), at
+      (0, 0, length): exact in every pose. Joint 0 ("center_of_gravity", the whole body's
+      translating joint) has none: MuJoCo's `subtree_com` gives the center of gravity.
+    - `<inertial>` at the centroid with the segment's mass and the isotropic inertia of a
+      solid sphere of its enclosure radius (`_rigid_links`); massless segments get
+      `TINY_MASS`, so the model's total mass exceeds the body's by that.
+    - `<contact><exclude>` for segment pairs whose spheres overlap in the standard position
+      (neighbouring vertebrae, pelvis and thighs, ...), beyond MuJoCo's own parent-child
+      filter, so a simulation does not start in self-contact.
+    - A keyframe "standard_position" = `mujoco_qpos(body, body.rest_pose())`; qpos = 0 is
+      every segment along its socket's Z, not a human posture.
+
+    Args:
+        body: the body (its arrays are written as float64, to the last digit).
+        path: the file to write.
+
+    Returns:
+        The path written.
+    """
+    g = Geometry(body)
+    root = ET.Element("mujoco", model=body.name)
+    ET.SubElement(root, "compiler", angle="radian")
+    default = ET.SubElement(root, "default")
+    ET.SubElement(default, "joint", armature=xml_numbers(ARMATURE))
+    ET.SubElement(default, "geom", type="sphere", rgba=xml_numbers(*SPHERE_RGBA))
+    ET.SubElement(default, "site", size=xml_numbers(SITE_SIZE), rgba=xml_numbers(*SITE_RGBA))
+    world = ET.SubElement(root, "worldbody")
+    elements: list[ET.Element] = []
+    for i, name in enumerate(g.names):
+        p = g.parent[i]
+        up = world if p < 0 else elements[p]
+        R = g.R_parent_socket[i]
+        el = ET.SubElement(
+            up, "body", name=name, pos=xml_numbers(*g.socket_offset(i)), quat=xml_numbers(*_quat(R))
+        )
+        elements.append(el)
+        ET.SubElement(
+            el,
+            "inertial",
+            pos=xml_numbers(*g.centroids[i]),
+            mass=xml_numbers(g.link_masses[i]),
+            diaginertia=xml_numbers(*[g.inertia[i]] * 3),
+        )
+        if p < 0:
+            # Slide axes in the body frame that are the world axes: rows of R_parent_socket.
+            for k, ax in enumerate(SLIDE_AXES):
+                ET.SubElement(
+                    el, "joint", name=f"{name}_{ax}", type="slide", axis=xml_numbers(*R[k])
+                )
+        for hinge, axis in zip(HINGES, HINGE_AXES):
+            ET.SubElement(
+                el, "joint", name=f"{name}_{hinge}", type="hinge", axis=xml_numbers(*axis)
+            )
+        for k, origin, radius in g.spheres[i]:
+            ET.SubElement(
+                el,
+                "geom",
+                name=f"{name}_sphere_{k}",
+                pos=xml_numbers(*origin),
+                size=xml_numbers(radius),
+            )
+        for feature, point in g.features[i]:
+            ET.SubElement(el, "site", name=feature, pos=xml_numbers(*point))
+        ET.SubElement(
+            el, "site", name=g.distal_joint_names[i], pos=xml_numbers(0.0, 0.0, g.lengths[i])
+        )
+    contact = ET.SubElement(root, "contact")
+    for a, b in g.overlapping_pairs():
+        ET.SubElement(contact, "exclude", body1=g.names[a], body2=g.names[b])
+    keyframe = ET.SubElement(root, "keyframe")
+    ET.SubElement(
+        keyframe,
+        "key",
+        name="standard_position",
+        qpos=xml_numbers(*mujoco_qpos(body, body.rest_pose())),
+    )
+    return write_xml(
+        root,
+        path,
+        f" {body.name} ({Path(body.source).name}), exported by diffbody. Each body is a "
+        "segment's socket frame; hinges theta (z), phi (y), twist (z) give "
+        "Rz(theta) Ry(phi) Rz(s + tau). Spheres and sites are in the twisted frame: they "
+        "turn with the full twist. Set qpos with diffbody's mujoco_qpos. ",
+    )

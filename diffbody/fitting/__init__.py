@@ -1,0 +1,72 @@
+"""Fitting a body to measurements: sphere clouds, and motion capture (marker files, marker
+sets, scaling and registration on a static trial, every frame of a trial)."""
+
+from ._clouds import (
+    sample_pose as sample_pose,
+)
+from ._clouds import (
+    synthetic_cloud as synthetic_cloud,
+)
+from ._markers import (
+    LAB_AXES as LAB_AXES,
+)
+from ._markers import (
+    MarkerFileError as MarkerFileError,
+)
+from ._markers import (
+    MarkerTrial as MarkerTrial,
+)
+from ._markers import (
+    read_c3d as read_c3d,
+)
+from ._markers import (
+    read_markers as read_markers,
+)
+from ._markers import (
+    read_trc as read_trc,
+)
+from ._markers import (
+    write_trc as write_trc,
+)
+from ._markerset import (
+    MarkerSet as MarkerSet,
+)
+from ._markerset import (
+    MarkerWarning as MarkerWarning,
+)
+from ._markerset import (
+    load_markerset as load_markerset,
+)
+from ._markerset import (
+    match_markers as match_markers,
+)
+from ._markerset import (
+    scale_offsets as scale_offsets,
+)
+from ._markerset import (
+    world_markers as world_markers,
+)
+from ._mocap import (
+    MotionFit as MotionFit,
+)
+from ._mocap import (
+    StaticFit as StaticFit,
+)
+from ._mocap import (
+    fit_motion as fit_motion,
+)
+from ._mocap import (
+    scale_and_register as scale_and_register,
+)
+from ._sphere_fit import (
+    FitStatus as FitStatus,
+)
+from ._sphere_fit import (
+    SphereFit as SphereFit,
+)
+from ._sphere_fit import (
+    fit_spheres as fit_spheres,
+)
+from ._sphere_fit import (
+    fit_spheres_batch as fit_spheres_batch,
+)

@@ -1,0 +1,68 @@
+"""The standard orientation as a post-projection after a solve (seed 000, "Standard
+Orientation"; DESIGN section 4): whatever path the solver took, twists that no target
+depends on go back to the standard orientation, with every joint where the solve put it."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._body import Body, Pose
+from .._kinematics import forward
+from .._limits import within_limits
+from .._posture import pose_from_joints
+from ._unknowns import Layout, path_to_top, point_segment
+
+# A reset that breaks a limit by more than this (rad) is refused: the posture from joints
+# rounds, and a twist exactly at its limit must stay admissible.
+PROJECTION_TOL = 1e-6
+
+
+def twists_to_keep(body: Body, layout: Layout) -> tuple[int, ...]:
+    """Segments whose twist the projection keeps (static): the whole body, the vertebrae
+    the spine moves, every segment at or above an off-axis effector (a feature or an axis
+    target turns with the twists above it; joint positions never do), and the parent of
+    every hinge (resetting it would turn the hinge plane away from a bent joint)."""
+    names = body.segment_names
+    spine = set(body.spine.segment_names) if body.spine is not None else set()
+    keep = {0} | {i for i in layout.chain.segments if names[i] in spine}
+    cog = body.n_joints + len(body.feature_names)
+    if cog in layout.points:
+        off_axis = list(range(body.n_segments))
+    else:
+        off_axis = [point_segment(body, i) for i in layout.points if i >= body.n_joints]
+        off_axis += [
+            layout.chain.segments[k]
+            if k < layout.chain.size
+            else layout.bases[k - layout.chain.size]
+            for k in layout.axis_slot
+        ]
+    for seg in off_axis:
+        keep |= set(path_to_top(body, seg))
+    keep |= {int(body.parent[i]) for i in range(body.n_segments) if body.limit_kind[i] == "hinge"}
+    return tuple(sorted(keep))
+
+
+def needs_projection(body: Body, layout: Layout) -> bool:
+    """Whether the solver moves a twist that the projection would reset."""
+    seg = layout.chain.segments
+    moved = {seg[k] for k in layout.twist}
+    return bool(moved - set(twists_to_keep(body, layout)))
+
+
+def project_to_standard(body: Body, pose: Pose, keep: tuple[int, ...]) -> Pose:
+    """The pose with every twist outside `keep` reset to the standard orientation, joint
+    positions unchanged (the posture from joints); if the reset would break a limit, the
+    pose is returned as it is."""
+    mask = np.zeros(body.n_segments, bool)
+    mask[list(keep)] = True
+    fk = forward(body, pose)
+    deviation = jnp.where(mask, pose.angles[:, 2], 0.0)
+    W = fk.R_world_twisted[0]  # the whole body's frame is never projected
+    standard = pose_from_joints(body, fk.joint_positions, W, deviation).angles
+    projected = Pose(
+        position=pose.position,
+        angles=jnp.where(mask[:, None], pose.angles, standard),
+        spine_target=pose.spine_target,
+    )
+    ok = jnp.all(within_limits(body, projected, tol=PROJECTION_TOL))
+    return jax.tree.map(lambda a, c: jnp.where(ok, a, c), projected, pose)

@@ -1,0 +1,353 @@
+"""One reach problem: (chain, unknowns, start) -> weighted residuals, one walk per
+evaluation (DESIGN section 6).
+
+Everything that does not change during a solve (the start's frames above the first
+unknown, the bounds, the pull toward the start) is computed once, when the problem is built;
+`residuals` then maps the free vector to swing vectors and twists of the live segments,
+walks them once (`walk_links`) and compares the effectors with the targets.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._body import Body, Pose
+from .._kinematics import (
+    Links,
+    exp_swing,
+    feature_points,
+    full_chain,
+    place_on_segments,
+    pose_frames,
+    reroot,
+    socket_frames_from_swing,
+    spine_deviation,
+    walk_links,
+    world_base,
+)
+from .._limits import angles_from_swing, swing_vector
+from .._posture import angles_of_rotation
+from .._rotations import exp_rotvec, matmul3, rot_z, safe_norm
+from .._spine import spine_angles
+from ._targets import TargetSet
+from ._unknowns import Layout, into_cone, path_to_top, point_segment, squash, unsquash
+
+# The pull toward the start, per unit of the free variables: it settles the redundant
+# directions of a chain without moving reached targets by more than micrometres. The
+# spine's pull is stronger, so once it may move it bends only as far as the arm needs.
+PULL = 1e-6
+SPINE_PULL = 3e-5
+# The spine's free variables are its bounded variables times this factor, so that a unit of
+# the solver's step bends the spine a quarter as far: Levenberg-Marquardt's damped steps
+# are shortest in the free variables, so the arm takes most of a reach and the trunk bends
+# progressively, only as far as the arm needs (the reach ladder, README "Reach").
+SPINE_STIFFNESS = 2.0
+
+
+def _gather_or(values: Array, index: np.ndarray, mask: np.ndarray, default: Array) -> Array:
+    """Row k of the result is values[index[k]] where mask[k], else default[k] (no scatter)."""
+    if values.shape[0] == 0:
+        return default
+    return jnp.where(mask, values[np.where(mask, index, 0)], default)
+
+
+class Problem(eqx.Module):
+    """Everything fixed during one solve. Build it with `make_problem`."""
+
+    body: Body
+    layout: Layout = eqx.field(static=True)
+    swing0: Float[Array, "m 2"]  # rad, the start's swing vectors of the live segments
+    tau0: Float[Array, " m"]  # rad, their twists
+    R_socket0: Float[Array, "m 3 3"]  # the start's base frames in their sockets
+    bases: Links  # the start's state of the segments the chain hangs from
+    tau_bases: Float[Array, " n_base"]  # their twists
+    position0: Float[Array, "3"]  # m, the start's root joint
+    lo: Float[Array, " n_free"]  # bounds of the bounded unknowns (root: unused)
+    hi: Float[Array, " n_free"]
+    x0: Float[Array, " n_free"]  # the start's free variables
+    pull: Float[Array, " n_free"]  # square roots of the pull weights
+
+    # --- the free vector to the live segments -------------------------------------------
+    def state(self, x: Array):
+        """Swing vectors (m, 2), twists (m,), spine target (or None) and root placement of
+        the free vector, every limit exact (box map, then the radial pull into the cone)."""
+        lay, b = self.layout, self.body
+        sx, sy, tw, sp, root = lay.split(x)
+        lo_sx, lo_sy, lo_tw, lo_sp, _ = lay.split(self.lo)
+        hi_sx, hi_sy, hi_tw, hi_sp, _ = lay.split(self.hi)
+        m = lay.chain.size
+        seg = np.asarray(lay.chain.segments, int)
+
+        def spread(free: tuple[int, ...], values: Array, default: Array) -> Array:
+            index = np.zeros(m, int)
+            index[list(free)] = np.arange(len(free))
+            mask = np.zeros(m, bool)
+            mask[list(free)] = True
+            return _gather_or(values, index, mask, default)
+
+        w = jnp.stack(
+            [
+                spread(lay.swing_x, squash(sx, lo_sx, hi_sx), self.swing0[:, 0]),
+                spread(lay.swing_y, squash(sy, lo_sy, hi_sy), self.swing0[:, 1]),
+            ],
+            axis=-1,
+        )
+        w = into_cone(w, b.swing_max[seg]) if m else w
+        tau = spread(lay.twist, squash(tw, lo_tw, hi_tw), self.tau0)
+        spine_target = squash(sp / SPINE_STIFFNESS, lo_sp, hi_sp) if lay.spine else None
+        return w, tau, spine_target, root
+
+    def links(self, x: Array) -> tuple[Links, Array]:
+        """The live segments' links (chain order) and twists for the free vector: one walk."""
+        lay, b = self.layout, self.body
+        w, tau, spine_target, root = self.state(x)
+        seg = np.asarray(lay.chain.segments, int)
+        moving = set(lay.swing_x + lay.swing_y + lay.twist)
+        k_swing = np.asarray([k for k in range(len(seg)) if k in moving], int)
+        R = self.R_socket0
+        parts, rows = [R], [np.arange(len(seg))]
+        if k_swing.size:
+            parts.append(socket_frames_from_swing(b, w[k_swing], seg[k_swing]))
+            rows.append(k_swing)
+        if lay.spine:
+            _, w_sp, tw_sp = spine_deviation(b, spine_target)
+            k_sp, r_sp = np.asarray(lay.spine, int), np.asarray(lay.spine_rows, int)
+            parts.append(matmul3(b.R_socket_rest[seg[k_sp]], exp_swing(w_sp[r_sp])))
+            rows.append(k_sp)
+            tau = _gather_or(tw_sp[r_sp], _index_of(k_sp, len(seg)), _mask_of(k_sp, len(seg)), tau)
+        position = self.position0
+        if lay.root:
+            k0 = np.asarray([lay.chain.position(0)])
+            parts.append(matmul3(exp_rotvec(root[3:])[None], R[k0]))
+            rows.append(k0)
+            position = position + root[:3]
+        # The last part that names a row wins: a permutation gather, not a scatter.
+        pick = np.zeros(len(seg), int)
+        offset = 0
+        for part_rows in rows:
+            pick[part_rows] = offset + np.arange(len(part_rows))
+            offset += len(part_rows)
+        R = jnp.concatenate(parts)[pick] if len(seg) else R
+        bases = self.bases
+        if -1 in lay.bases:
+            world = world_base(position)
+            bases = jax.tree.map(
+                lambda a, wb: jnp.where(_is_world(lay)[(...,) + (None,) * (a.ndim - 1)], wb, a),
+                bases,
+                world,
+            )
+        links = walk_links(b, lay.chain, R, tau, bases)
+        if lay.full:
+            links = global_order(lay, links)
+            links = reroot(b, links, position)
+            links = _chain_order(lay, links)
+        return links, tau
+
+    # --- effectors and residuals ---------------------------------------------------------
+    def effectors(self, x: Array, targets: TargetSet) -> tuple[Array, Array]:
+        """World positions of the point effectors (n_p, 3) and the world directions of the
+        axis targets' axes (n_a, 3)."""
+        lay, b = self.layout, self.body
+        links, tau = self.links(x)
+        allof = jax.tree.map(lambda c, s: jnp.concatenate([c, s]), links, self.bases)
+        tau_all = jnp.concatenate([tau, self.tau_bases])
+        n_j, n_f = b.n_joints, len(b.feature_names)
+        points = []
+        for index, slot in zip(lay.points, lay.point_slot):
+            if index == n_j + n_f:
+                points.append(self._center_of_gravity(links, tau))
+            elif index == 0:
+                points.append(allof.p_proximal[slot])
+            elif index < n_j:
+                points.append(allof.p_distal[slot])
+            else:
+                f = np.asarray([index - n_j])
+                p, _ = feature_points(
+                    b,
+                    f,
+                    allof.R_base[slot][None],
+                    allof.p_proximal[slot][None],
+                    tau_all[slot][None],
+                )
+                points.append(p[0])
+        p = jnp.stack(points) if points else jnp.zeros((0, 3), x.dtype)
+        slots = np.asarray(lay.axis_slot, int)
+        axes = jnp.einsum("kij,kj->ki", allof.R_twisted[slots], targets.axis_local)
+        return p, axes
+
+    def _center_of_gravity(self, links: Links, tau: Array) -> Array:
+        b, lay = self.body, self.layout
+        g = global_order(lay, links)
+        t = tau[np.argsort(np.asarray(lay.chain.segments))]
+        all_seg = np.arange(b.n_segments)
+        c = g.p_proximal + place_on_segments(
+            b, all_seg, b.centroids, b.centroids[:, 2], g.R_base, t
+        )
+        total = jnp.sum(b.masses)
+        return jnp.sum(b.masses[:, None] * c, axis=0) / jnp.where(total > 0, total, 1.0)
+
+    def residuals(self, x: Array, targets: TargetSet) -> Array:
+        """Weighted residuals: points (m), axes (chord lengths ~ rad), the pull toward the
+        start; one flat vector."""
+        p, axes = self.effectors(x, targets)
+        return jnp.concatenate(
+            [
+                (targets.point_weight[:, None] * (p - targets.point_xyz)).ravel(),
+                (targets.axis_weight[:, None] * (axes - targets.axis_direction)).ravel(),
+                self.pull * (x - self.x0),
+            ]
+        )
+
+    def errors(self, x: Array, targets: TargetSet) -> tuple[Array, Array]:
+        """Distances of the point targets (m) and angles of the axis targets (rad); finite
+        for any finite target (no overflow of squares in float32)."""
+        p, axes = self.effectors(x, targets)
+        cos = jnp.clip(jnp.sum(axes * targets.axis_direction, axis=-1), -1.0, 1.0)
+        return scaled_distance(p, targets.point_xyz), jnp.arccos(cos)
+
+    # --- the public pose ----------------------------------------------------------------
+    def pose(self, x: Array, init: Pose) -> Pose:
+        """The public pose of the free vector: `init` with the live rows replaced (theta,
+        phi, tau), the spine as its target when it moved."""
+        lay, b = self.layout, self.body
+        w, tau, spine_target, root = self.state(x)
+        seg = np.asarray(lay.chain.segments, int)
+        n = b.n_segments
+        angles = jnp.asarray(init.angles)
+        spine_rows = set(lay.spine)
+        k = np.asarray([i for i in range(len(seg)) if i not in spine_rows and seg[i] != 0], int)
+        if k.size:
+            W = swing_vector(b, angles).at[seg[k]].set(w[k])
+            T = angles[:, 2].at[seg[k]].set(tau[k])
+            mask = np.zeros(n, bool)
+            mask[seg[k]] = True
+            angles = jnp.where(mask[:, None], angles_from_swing(b, W, T), angles)
+        position = jnp.asarray(init.position)
+        if lay.root:
+            R0 = exp_rotvec(root[3:]) @ self.R_socket0[lay.chain.position(0)]
+            angles = angles.at[0].set(angles_of_rotation(R0 @ rot_z(angles[0, 2])))
+            position = position + root[:3]
+        if spine_target is None:
+            spine_target = init.spine_target
+        return Pose(position=position, angles=angles, spine_target=spine_target)
+
+
+def scaled_distance(a: Array, b: Array) -> Array:
+    """|a - b| along the last axis, computed as s |(a - b) / s| with s the largest
+    component, so huge finite differences do not overflow."""
+    d = a - b
+    s = jnp.max(jnp.abs(d), axis=-1, keepdims=True)
+    s = jnp.where(jnp.isfinite(s) & (s > 0), s, 1.0)
+    return s[..., 0] * safe_norm(d / s)
+
+
+def _index_of(k: np.ndarray, m: int) -> np.ndarray:
+    index = np.zeros(m, int)
+    index[k] = np.arange(len(k))
+    return index
+
+
+def _mask_of(k: np.ndarray, m: int) -> np.ndarray:
+    mask = np.zeros(m, bool)
+    mask[k] = True
+    return mask
+
+
+def _is_world(lay: Layout) -> np.ndarray:
+    return np.asarray([b == -1 for b in lay.bases])
+
+
+def global_order(lay: Layout, links: Links) -> Links:
+    order = np.argsort(np.asarray(lay.chain.segments))
+    return jax.tree.map(lambda a: a[order], links)
+
+
+def _chain_order(lay: Layout, links: Links) -> Links:
+    return jax.tree.map(lambda a: a[np.asarray(lay.chain.segments)], links)
+
+
+def start_links(body: Body, init: Pose) -> tuple[Links, Array, Array]:
+    """The start's links of every segment (global order), its base frames in their
+    sockets and its twists."""
+    R_socket_base, tau = pose_frames(body, init)
+    position = jnp.asarray(init.position, R_socket_base.dtype)
+    chain = full_chain(body)
+    seg = np.asarray(chain.segments)
+    links = walk_links(body, chain, R_socket_base[seg], tau[seg], world_base(position))
+    links = jax.tree.map(lambda a: a[np.argsort(seg)], links)
+    return reroot(body, links, position), R_socket_base, tau
+
+
+def make_problem(body: Body, layout: Layout, init: Pose) -> Problem:
+    """Build the fixed part of a solve (traceable: the init and the body may be traced)."""
+    links, R_socket, tau = start_links(body, init)
+    seg = np.asarray(layout.chain.segments, int)
+    bases_seg = np.asarray([max(s, 0) for s in layout.bases], int)
+    bases = jax.tree.map(lambda a: a[bases_seg], links)
+    w_all = swing_vector(body, jnp.asarray(init.angles))
+    sx, sy, tw = (np.asarray(a, int) for a in (layout.swing_x, layout.swing_y, layout.twist))
+    lo_parts = [body.swing_lo[seg[sx], 0], body.swing_lo[seg[sy], 1], body.twist_lo[seg[tw]]]
+    hi_parts = [body.swing_hi[seg[sx], 0], body.swing_hi[seg[sy], 1], body.twist_hi[seg[tw]]]
+    x_parts = [w_all[seg[sx], 0], w_all[seg[sy], 1], tau[seg[tw]]]
+    pull = [np.full(len(sx) + len(sy) + len(tw), np.sqrt(PULL))]
+    if layout.spine:
+        spine = body.spine
+        total = (
+            init.spine_target
+            if init.spine_target is not None
+            else spine_angles(body, spine, init).sum(0)
+        )
+        lo_parts.append(spine.lower.sum(0))
+        hi_parts.append(spine.upper.sum(0))
+        x_parts.append(jnp.asarray(total, w_all.dtype))
+        pull.append(np.full(3, np.sqrt(SPINE_PULL)))
+    lo, hi = jnp.concatenate(lo_parts), jnp.concatenate(hi_parts)
+    x0 = unsquash(jnp.concatenate(x_parts), lo, hi)
+    if layout.spine:
+        x0 = x0.at[-3:].multiply(SPINE_STIFFNESS)
+    if layout.root:
+        zeros = jnp.zeros(6, x0.dtype)
+        lo, hi, x0 = (jnp.concatenate([a, zeros]) for a in (lo, hi, x0))
+        pull.append(np.full(6, np.sqrt(PULL)))
+    return Problem(
+        body=body,
+        layout=layout,
+        swing0=w_all[seg].reshape(-1, 2),
+        tau0=tau[seg],
+        R_socket0=R_socket[seg].reshape(-1, 3, 3),
+        bases=bases,
+        tau_bases=tau[bases_seg],
+        position0=jnp.asarray(init.position, x0.dtype),
+        lo=lo,
+        hi=hi,
+        x0=x0,
+        pull=jnp.asarray(np.concatenate(pull), x0.dtype),
+    )
+
+
+def reach_bound(body: Body, layout: Layout, links: Links) -> tuple[np.ndarray, np.ndarray]:
+    """Per point target, the fixed point its chain hangs from (n_p, 3; start links, global
+    order) and the farthest its effector can be from it (n_p,): the sum of the live
+    segments' lengths on its path, the effector's own segment counted to the effector. inf
+    where the root is free or the whole tree moves (no fixed point)."""
+    n_j = body.n_joints
+    lengths = np.asarray(body.lengths)
+    live = set(layout.chain.segments)
+    anchor, bound = [], []
+    for index in layout.points:
+        seg = point_segment(body, index)
+        path = [s for s in path_to_top(body, seg) if s in live]
+        if layout.root or layout.full or not path:
+            anchor.append(np.zeros(3))
+            bound.append(np.inf if path else 0.0)
+            continue
+        top = path[-1]
+        anchor.append(np.asarray(links.p_proximal[top]))
+        own = lengths[seg]
+        if index >= n_j:
+            sph = body.feature_sphere[index - n_j]
+            own = float(np.linalg.norm(body.sphere_origins[sph]) + body.sphere_radii[sph])
+        bound.append(sum(lengths[s] for s in path if s != seg) + (own if seg in live else 0.0))
+    return np.asarray(anchor).reshape(-1, 3), np.asarray(bound)

@@ -1,0 +1,55 @@
+"""Where a solve starts (DESIGN section 6): the start pose first, then fixed points spread
+over the free variables' range.
+
+Start 0 is the caller's `init`, so a reachable target keeps the most natural posture. Start
+k > 0 is the k-th point of a Halton sequence over the limbs' free variables (u in
+[-1.3, 1.3]; the trunk, the spine target and the root's placement, kept at the start, so
+that the trunk never starts bent further than the reach needs): low-discrepancy, so the
+first few starts already cover the range evenly instead of clustering as independent
+random draws do, and the same for every problem, so results are reproducible.
+"""
+
+import functools
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+SPREAD = 1.3  # the starts' range of the free variables (sin map: +-96 % of each range)
+_PRIMES = (2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53, 59, 61, 67, 71, 73, 79)
+
+
+def _radical_inverse(k: int, base: int) -> float:
+    out, f = 0.0, 1.0 / base
+    while k:
+        k, digit = divmod(k, base)
+        out += digit * f
+        f /= base
+    return out
+
+
+@functools.cache
+def halton(n_starts: int, dim: int) -> np.ndarray:
+    """(n_starts, dim) points of the Halton sequence in [-SPREAD, SPREAD] (row 0 unused)."""
+    pts = np.asarray(
+        [
+            [_radical_inverse(k, _PRIMES[d % len(_PRIMES)]) for d in range(dim)]
+            for k in range(n_starts)
+        ]
+    )
+    return SPREAD * (2.0 * pts.reshape(n_starts, dim) - 1.0)
+
+
+MAX_STARTS = 64  # starts beyond this many repeat the table (each is tried at most once)
+
+
+def nth_start(x0: Float[Array, " n"], k: Int[Array, ""], n_trunk: int) -> Float[Array, " n"]:
+    """The free vector of start k (traced): x0 for k = 0, else the k-th Halton point with
+    the trunk (the last `n_trunk` entries: spine target, root placement) kept at x0."""
+    n = x0.shape[0]
+    if n == 0:
+        return x0
+    table = jnp.asarray(halton(MAX_STARTS, n), x0.dtype)
+    point = table[jnp.mod(k, MAX_STARTS)]
+    keep = np.arange(n) >= n - n_trunk
+    return jnp.where((k == 0) | keep, x0, point)

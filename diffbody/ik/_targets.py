@@ -1,0 +1,165 @@
+"""Reach targets (DESIGN section 6): what the user asks for, checked on the host and turned
+into index arrays for the solver."""
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from .._body import Body
+
+COG = "center_of_gravity"
+
+
+def _check_weight(where: str, weight) -> float:
+    if isinstance(weight, jax.core.Tracer):
+        raise TypeError(f"{where}: weight must be a plain number, not a traced value")
+    w = float(weight)
+    if not (math.isfinite(w) and w >= 0.0):
+        raise ValueError(f"{where}: weight must be a finite number >= 0, got {weight!r}")
+    return w
+
+
+def _unit(where: str, name: str, v) -> np.ndarray:
+    a = np.asarray(v, float)
+    if a.shape != (3,):
+        raise ValueError(f"{where}: {name} must be 3 numbers, got shape {a.shape}")
+    n = float(np.linalg.norm(a))
+    if not (math.isfinite(n) and n > 1e-12):
+        raise ValueError(f"{where}: {name} must be a finite, non-zero vector, got {a.tolist()}")
+    return a / n
+
+
+@dataclass(frozen=True)
+class Target:
+    """One reach target; build it with the class methods. A host-side description: names
+    are resolved into indices by `solve_reach`."""
+
+    kind: str  # "point" or "axis"
+    name: str  # "left_hand.palm", "left_wrist", "center_of_gravity", or a segment for axes
+    value: np.ndarray | Array  # (3,) position (m) or unit direction; traced under jax.grad
+    axis: np.ndarray | None = None  # (3,) unit axis in the segment's twisted frame, for "axis"
+    weight: float = 1.0
+
+    @classmethod
+    def position(
+        cls, name: str, xyz: ArrayLike | Sequence[float | int], weight: float = 1.0
+    ) -> "Target":
+        """Put a joint ("left_wrist"), a feature ("left_hand.palm") or "center_of_gravity"
+        at `xyz` (m, world). `weight` is a finite number >= 0."""
+        value = xyz if isinstance(xyz, jax.Array) else np.asarray(xyz, float)
+        return cls("point", name, value, None, _check_weight(f"target {name!r}", weight))
+
+    @classmethod
+    def axis_direction(
+        cls,
+        segment: str,
+        axis: ArrayLike | Sequence[float | int],
+        direction: ArrayLike | Sequence[float | int],
+        weight: float = 1.0,
+    ) -> "Target":
+        """Turn `axis` (in the segment's twisted frame, e.g. the palm normal (0, 1, 0) of the
+        left hand) to point along `direction` (world). Both non-zero; they are normalised."""
+        where = f"axis target {segment!r}"
+        a, d = _unit(where, "axis", axis), _unit(where, "direction", direction)
+        return cls("axis", segment, d, a, _check_weight(where, weight))
+
+    @classmethod
+    def frame(cls, segment: str, R_world_segment: ArrayLike, weight: float = 1.0) -> list["Target"]:
+        """A full orientation: the segment's X and Z axes along the columns of R."""
+        R = np.asarray(R_world_segment, float)
+        return [
+            cls.axis_direction(segment, e, R[:, k], weight)
+            for k, e in ((0, [1, 0, 0]), (2, [0, 0, 1]))
+        ]
+
+
+class TargetSet(eqx.Module):
+    """Targets as arrays (one problem; batch them with a leading axis)."""
+
+    # The effectors are structure (they decide what a solve walks): static, never traced.
+    point_index: tuple[int, ...] = eqx.field(static=True)  # into [joints, features, COG]
+    point_xyz: Float[Array, "n_p 3"]  # m
+    point_weight: Float[Array, " n_p"]
+    axis_segment: tuple[int, ...] = eqx.field(static=True)
+    axis_local: Float[Array, "n_a 3"]  # unit, segment's twisted frame
+    axis_direction: Float[Array, "n_a 3"]  # unit, world
+    axis_weight: Float[Array, " n_a"]
+
+
+def point_index(body: Body, name: str) -> int:
+    """Index of an effector into [joints, features, center of gravity]."""
+    n_j, n_f = body.n_joints, len(body.feature_names)
+    if name == COG:
+        return n_j + n_f
+    if "." in name:
+        return n_j + body.feature_index(name)
+    if name in body.joint_names:
+        return body.joint_index(name)
+    raise KeyError(
+        f"unknown effector {name!r}: use a joint ({', '.join(body.joint_names[1:])}), "
+        f"a feature ({', '.join(body.feature_names)}) or {COG!r}"
+    )
+
+
+def flatten_targets(targets: Sequence[Target | list[Target]]) -> list[Target]:
+    """The targets with `Target.frame`'s lists spliced in; checks each is a Target."""
+    flat: list[Target] = []
+    for t in targets:
+        for u in t if isinstance(t, list) else [t]:
+            if not isinstance(u, Target):
+                raise TypeError(
+                    f"solve_reach: targets must be diffbody.Target objects, got {type(u).__name__}"
+                )
+            flat.append(u)
+    if not flat:
+        raise ValueError("solve_reach: no targets given")
+    return flat
+
+
+def resolve_targets(body: Body, targets: Sequence[Target]) -> tuple[TargetSet, list[int]]:
+    """Names to indices (host side). Returns the arrays and the order the targets take in
+    them (points first, then axes)."""
+    points = [t for t in targets if t.kind == "point"]
+    axes = [t for t in targets if t.kind == "axis"]
+    for t in targets:
+        if np.shape(t.value) != (3,):
+            raise ValueError(
+                f"target {t.name!r}: expected 3 numbers, got shape {np.shape(t.value)}"
+            )
+    order = [i for i, t in enumerate(targets) if t.kind == "point"]
+    order += [i for i, t in enumerate(targets) if t.kind == "axis"]
+    xyz = jnp.stack([jnp.asarray(t.value) for t in points]) if points else jnp.zeros((0, 3))
+    ts = TargetSet(
+        point_index=tuple(point_index(body, t.name) for t in points),
+        point_xyz=xyz.reshape(-1, 3),
+        point_weight=jnp.asarray([t.weight for t in points]).reshape(-1),
+        axis_segment=tuple(body.segment_index(t.name) for t in axes),
+        axis_local=jnp.asarray(np.asarray([t.axis for t in axes]).reshape(-1, 3)),
+        axis_direction=jnp.asarray(np.asarray([t.value for t in axes]).reshape(-1, 3)),
+        axis_weight=jnp.asarray([t.weight for t in axes]).reshape(-1),
+    )
+    return ts, order
+
+
+def mask_invalid(targets: TargetSet) -> tuple[TargetSet, Array, Array]:
+    """Non-finite targets take no part (weight 0, a harmless value); returns the masked set
+    and the validity of the points and axes."""
+    ok_p = jnp.all(jnp.isfinite(targets.point_xyz), axis=-1)
+    ok_a = jnp.all(jnp.isfinite(targets.axis_direction), axis=-1)
+    safe = eqx.tree_at(
+        lambda t: (t.point_xyz, t.point_weight, t.axis_direction, t.axis_weight),
+        targets,
+        (
+            jnp.where(ok_p[:, None], targets.point_xyz, 0.0),
+            jnp.where(ok_p, targets.point_weight, 0.0),
+            jnp.where(ok_a[:, None], targets.axis_direction, jnp.array([0.0, 0.0, 1.0])),
+            jnp.where(ok_a, targets.axis_weight, 0.0),
+        ),
+    )
+    return safe, ok_p, ok_a

@@ -1,0 +1,364 @@
+"""Joint refinement of lengths and postures from an image sequence (beyond seed 003): one
+least-squares problem over all frames, from Webb's estimate, solved by optimistix.
+
+Unknowns: the log of every distinct length (left and right parts share one with
+`symmetric`), optionally the log focal length, and per frame the reference joint's (x, y)
+(its depth stays the known one) and each part's direction, as two coordinates in the plane
+tangent to its starting direction (`normalize(d0 + a e1 + b e2)`: no pole, and a part turns
+smoothly through the view perpendicular to its ray, where its reflection changes).
+
+Residuals:
+
+- the reprojection error of every joint (px / `pixel_sigma`), through a Cauchy loss of
+  scale `robust` sigmas so that a few wrong detections do not pull the fit;
+- the acceleration of every part's vector L d and of the reference joint (m per frame^2),
+  across the view / `accel_sigma` and along the optical axis / `depth_accel_sigma`. Static
+  analysis has no more equations than unknowns in a frame: every length above its lower
+  bound reprojects exactly, and only the motion's continuity tells noise from shape. Depth
+  is smoothed more loosely because the least-motion interpretation of foreshortening is a
+  longer part pointing along the ray: a stiff prior in depth lengthens parts;
+- the log lengths against the start's (/ `length_sigma`): Webb's lengths are lower bounds,
+  and a part that is never seen perpendicular to its ray cannot be lengthened by the data;
+  this keeps the smoothness prior from doing it;
+- optionally the body's hinge limits (knee, elbow: the angle between a part and the part
+  above it stays within the hinge's range).
+
+The focal length (`refine_focal`) is weakly observable: with the smoothness prior it moves
+a few per cent toward longer focal lengths; refine it only from a close start.
+
+The normal matrix couples frames only through the accelerations (three consecutive
+frames) and the shared lengths: `diffbody._banded.BandedSchurCholesky` solves it in
+O(T n^3), and optimistix's Levenberg-Marquardt drives the steps.
+"""
+
+import enum
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, ArrayLike, Float, Int
+
+from .._rotations import safe_normalize
+from ._banded import BandedSchurCholesky, FrameResiduals, FrameUnknowns
+from ._joint_tree import JointTree
+from ._webb import check_sequence, rays
+
+
+class LiftStatus(enum.IntEnum):
+    """How a refinement ended."""
+
+    CONVERGED = 0  # the steps stopped changing the answer (optimistix's tolerances)
+    NOT_CONVERGED = 1  # max_steps ran out: the last iterate, usable but not settled
+    FAILED = 2  # the solve broke down: the start is returned
+
+    def describe(self) -> str:
+        return {
+            0: "converged",
+            1: "not converged: the last iterate after max_steps",
+            2: "failed: the start is returned",
+        }[int(self)]
+
+
+class Lifting(eqx.Module):
+    """A refined sequence (camera frame); leading batch axes when batched."""
+
+    lengths: Float[Array, "*b n_parts"]  # m
+    joints: Float[Array, "*b n_frames n_obs 3"]  # m
+    focal: Float[Array, "*b"]  # px (the given one unless refined)
+    reprojection_rms: Float[Array, "*b"]  # px, over every joint and frame
+    steps: Int[Array, "*b"]  # Levenberg-Marquardt steps taken
+    status: Int[Array, "*b"]  # LiftStatus
+
+
+class LiftOptions(eqx.Module):
+    """Weights and switches of the refinement (module docstring). The weights are traced
+    (changing them does not recompile); the switches are static."""
+
+    pixel_sigma: float = 1.0  # px, the image noise expected
+    accel_sigma: float = 0.0015  # m per frame^2, the accelerations expected across the view
+    depth_accel_sigma: float | None = 0.02  # along the optical axis; None: accel_sigma
+    robust: float | None = 3.0  # Cauchy scale in pixel sigmas; None: plain least squares
+    length_sigma: float | None = 0.05  # log-length pull toward the start; None: free
+    limit_sigma: float = 0.01  # the hinge rows' scale (cosine)
+    symmetric: bool = eqx.field(default=True, static=True)  # left and right share a length
+    limits: tuple[tuple[int, int, float], ...] = eqx.field(default=(), static=True)
+    refine_focal: bool = eqx.field(default=False, static=True)
+    max_steps: int = eqx.field(default=8, static=True)
+    tol: float = eqx.field(default=1e-2, static=True)  # optimistix rtol = atol (RMS norm)
+
+
+def _tangent_basis(d: Array) -> tuple[Array, Array]:
+    """Two unit vectors spanning the plane perpendicular to unit vectors d (..., 3)."""
+    ax = jnp.argmin(jnp.abs(d), axis=-1)
+    h = jax.nn.one_hot(ax, 3, dtype=d.dtype)
+    e1 = safe_normalize(jnp.cross(d, h), jnp.asarray([1.0, 0.0, 0.0], d.dtype))
+    return e1, jnp.cross(d, e1)
+
+
+def _cauchy(e: Array, c: Float[Array, ""] | float | None) -> Array:
+    """Residual vectors e (..., 2) scaled so that |e'|^2 = c^2 log(1 + |e|^2 / c^2) (the
+    Cauchy loss); e itself when c is None. Smooth at e = 0."""
+    if c is None:
+        return e
+    x = jnp.sum(e * e, -1, keepdims=True) / c**2
+    small = x < 1e-6
+    xs = jnp.where(small, 1.0, x)
+    ratio = jnp.where(small, 1.0 - x / 2, jnp.log1p(xs) / xs)
+    return e * jnp.sqrt(ratio)
+
+
+class _Problem(eqx.Module):
+    """The data and the fixed parameterisation of one sequence."""
+
+    log_len0: Array  # (G,) the start's log lengths
+    uv: Array  # (T, J, 2)
+    depth: Array  # (T,)
+    focal: Array  # ()
+    root0: Array  # (T, 2)
+    d0: Array  # (T, P, 3)
+    e1: Array  # (T, P, 3)
+    e2: Array  # (T, P, 3)
+
+
+def _ancestors(tree: JointTree) -> np.ndarray:
+    """(J, P) 0/1: part k lies on the path from the reference to joint j."""
+    part_of = {e: k for k, e in enumerate(tree.part_end)}
+    A = np.zeros((tree.n_joints, tree.n_parts))
+    for j in range(tree.n_joints):
+        i = j
+        while tree.parents[i] != -1:
+            A[j, part_of[i]] = 1.0
+            i = tree.parents[i]
+    return A
+
+
+def _joints(tree: JointTree, options: LiftOptions, groups, y: FrameUnknowns, pb: _Problem):
+    """(joints (T, J, 3), directions (T, P, 3), lengths (P,), focal) at unknowns y."""
+    lengths = jnp.exp(y.border[np.asarray(groups)])
+    focal = jnp.exp(y.border[-1]) if options.refine_focal else pb.focal
+    ab = y.frames[:, 1:]
+    d = safe_normalize(pb.d0 + ab[..., :1] * pb.e1 + ab[..., 1:] * pb.e2, pb.d0)
+    root = jnp.concatenate([pb.root0 + y.frames[:, 0], pb.depth[:, None]], -1)
+    # every joint is the reference plus the part vectors on its path: one product
+    A = jnp.asarray(_ancestors(tree), d.dtype)
+    pos = root[:, None] + jnp.einsum("jk,tkc->tjc", A, lengths[None, :, None] * d)
+    return pos, d, lengths, focal
+
+
+def _residuals(y: FrameUnknowns, args) -> FrameResiduals:
+    tree, options, groups, pb = args
+    pos, d, lengths, focal = _joints(tree, options, groups, y, pb)
+    z = jnp.maximum(pos[..., 2], 1e-3)
+    e = (focal * pos[..., :2] / z[..., None] - pb.uv) / options.pixel_sigma
+    frame = [_cauchy(e, options.robust).reshape(e.shape[0], -1)]
+    if options.limits:
+        k, up, ang = (np.asarray(v) for v in zip(*options.limits))
+        cos = jnp.sum(d[:, k] * d[:, up], -1)
+        frame.append(jax.nn.relu(np.cos(ang) - cos) / options.limit_sigma)
+    if options.length_sigma is not None:
+        # border-only rows, carried by frame 0's row
+        G = pb.log_len0.shape[0]
+        pull = (y.border[:G] - pb.log_len0) / options.length_sigma
+        first = jnp.arange(pos.shape[0])[:, None] == 0
+        frame.append(jnp.where(first, pull[None], 0.0))
+    root = pos[:, tree.root] * jnp.asarray([1.0, 1.0, 0.0], pos.dtype)
+    vec = jnp.concatenate([root[:, None], lengths[None, :, None] * d], axis=1)  # (T, E, 3)
+    a = options.accel_sigma
+    zs = a if options.depth_accel_sigma is None else options.depth_accel_sigma
+    scale = jnp.stack([a, a, zs]).astype(pos.dtype)
+    acc = (vec[:-2] - 2 * vec[1:-1] + vec[2:]) / scale
+    return FrameResiduals(frame=jnp.concatenate(frame, -1), window=acc)
+
+
+def lift_kernel(
+    tree: JointTree,
+    uv: Float[Array, "n_frames n_obs 2"],
+    root_depth: Float[Array, " n_frames"],
+    focal: Float[Array, ""],
+    init_joints: Float[Array, "n_frames n_obs 3"],
+    init_lengths: Float[Array, " n_parts"],
+    options: LiftOptions,
+    linear_solver=None,
+) -> Lifting:
+    """`refine` on one sequence (no input checks; at least 3 frames). `linear_solver`: a
+    lineax solver for the steps instead of `BandedSchurCholesky` (a dense one, to compare)."""
+    groups = tree.length_groups(options.symmetric)
+    n_groups = max(groups) + 1
+    s, e = np.asarray(tree.part_start), np.asarray(tree.part_end)
+    vec = init_joints[:, e] - init_joints[:, s]
+    fallback = jnp.asarray([0.0, 0.0, 1.0], uv.dtype)
+    d0 = safe_normalize(vec, fallback)
+    e1, e2 = _tangent_basis(d0)
+    w = rays(uv, focal)
+    root0 = (w[:, tree.root] * (root_depth / focal)[:, None])[:, :2]
+    g = jnp.asarray(groups)
+    log_len = jax.ops.segment_sum(jnp.log(init_lengths), g, n_groups) / jax.ops.segment_sum(
+        jnp.ones_like(init_lengths), g, n_groups
+    )
+    pb = _Problem(log_len, uv, root_depth, focal, root0, d0, e1, e2)
+    border = jnp.concatenate([log_len, jnp.log(focal)[None]]) if options.refine_focal else log_len
+    T, P = d0.shape[:2]
+    y0 = FrameUnknowns(border=border, frames=jnp.zeros((T, P + 1, 2), uv.dtype))
+    args = (tree, options, groups, pb)
+    solver = optx.LevenbergMarquardt(
+        rtol=options.tol,
+        atol=options.tol,
+        norm=optx.rms_norm,
+        linear_solver=linear_solver or BandedSchurCholesky(),
+    )
+    sol = optx.least_squares(_residuals, solver, y0, args, max_steps=options.max_steps, throw=False)
+    failed = ~(jnp.all(jnp.isfinite(sol.value.frames)) & jnp.all(jnp.isfinite(sol.value.border)))
+    y = jax.tree.map(lambda a, b: jnp.where(failed, b, a), sol.value, y0)
+    pos, _, lengths, f = _joints(tree, options, groups, y, pb)
+    z = jnp.maximum(pos[..., 2], 1e-3)
+    err = f * pos[..., :2] / z[..., None] - uv
+    status = jnp.where(
+        failed,
+        LiftStatus.FAILED,
+        jnp.where(
+            sol.result == optx.RESULTS.successful, LiftStatus.CONVERGED, LiftStatus.NOT_CONVERGED
+        ),
+    )
+    return Lifting(
+        lengths=lengths,
+        joints=pos,
+        focal=f,
+        reprojection_rms=jnp.sqrt(jnp.mean(jnp.sum(err * err, -1))),
+        steps=sol.stats["num_steps"],
+        status=status.astype(jnp.int32),
+    )
+
+
+def _check_options(options: LiftOptions, what: str) -> None:
+    """Refuse weights that are not finite and > 0 (host side), naming the option."""
+    for name in ("pixel_sigma", "accel_sigma", "limit_sigma", "tol"):
+        v = getattr(options, name)
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{what}: options.{name} must be a finite number > 0, got {v!r}")
+    for name in ("robust", "depth_accel_sigma", "length_sigma"):
+        v = getattr(options, name)
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{what}: options.{name} must be a number > 0 or None, got {v!r}")
+    if options.max_steps < 1:
+        raise ValueError(f"{what}: options.max_steps must be >= 1, got {options.max_steps}")
+
+
+@eqx.filter_jit
+def _lift_jit(tree, uv, root_depth, focal, init_joints, init_lengths, options):
+    flat = uv.shape[:-3]
+    n = int(np.prod(flat))
+    T, J = uv.shape[-3:-1]
+    out = jax.vmap(lambda a, b, c, d, e: lift_kernel(tree, a, b, c, d, e, options))(
+        uv.reshape(n, T, J, 2),
+        root_depth.reshape(n, T),
+        jnp.broadcast_to(focal, flat).reshape(n),
+        init_joints.reshape(n, T, J, 3),
+        init_lengths.reshape(n, tree.n_parts),
+    )
+    return jax.tree.map(lambda x: x.reshape(flat + x.shape[1:]), out)
+
+
+def refine(
+    tree: JointTree,
+    uv: Float[ArrayLike, "*b n_frames n_obs 2"],
+    root_depth: Float[ArrayLike, "*b n_frames"],
+    focal: ArrayLike,
+    init_joints: Float[ArrayLike, "*b n_frames n_obs 3"],
+    init_lengths: Float[ArrayLike, "*b n_parts"],
+    options: LiftOptions | None = None,
+) -> Lifting:
+    """Refine lengths and postures of one sequence or a batch (module docstring).
+
+    Args:
+        tree, uv, root_depth, focal: as for `diffbody.webb`; at least 3 frames.
+        init_joints: the start (camera frame, m), e.g. `choose_reflections(...).joints`.
+        init_lengths: the start's lengths (m, > 0), e.g. `choose_reflections(...).lengths`.
+        options: `LiftOptions` (weights, symmetric lengths, hinge limits, robust loss,
+            focal length); the defaults when None.
+
+    Returns:
+        `Lifting`: lengths, joints, focal length, reprojection RMS (px), steps and a
+        `LiftStatus`; a failed solve returns its start with status FAILED, never NaN.
+    """
+    options = options or LiftOptions()
+    uv, depth, f = check_sequence(tree, uv, root_depth, focal, "refine")
+    if uv.shape[-3] < 3:
+        raise ValueError(f"refine: needs at least 3 frames (accelerations), got {uv.shape[-3]}")
+    joints = np.asarray(init_joints, dtype=float)
+    if joints.shape != uv.shape[:-1] + (3,):
+        raise ValueError(
+            f"refine: init_joints must have shape {uv.shape[:-1] + (3,)}, got {joints.shape}"
+        )
+    if not np.all(np.isfinite(joints)):
+        raise ValueError("refine: init_joints must be finite")
+    lengths = np.asarray(init_lengths, dtype=float)
+    if lengths.shape != uv.shape[:-3] + (tree.n_parts,):
+        raise ValueError(
+            f"refine: init_lengths must have shape {uv.shape[:-3] + (tree.n_parts,)}, "
+            f"got {lengths.shape}"
+        )
+    if not np.all(np.isfinite(lengths) & (lengths > 0)):
+        raise ValueError("refine: init_lengths must be finite numbers > 0 m")
+    _check_options(options, "refine")
+    dtype = jnp.zeros(()).dtype
+    options = jax.tree.map(lambda v: jnp.asarray(v, dtype), options)
+    return _lift_jit(
+        tree,
+        jnp.asarray(uv, dtype),
+        jnp.asarray(depth, dtype),
+        jnp.asarray(f, dtype),
+        jnp.asarray(joints, dtype),
+        jnp.asarray(lengths, dtype),
+        options,
+    )
+
+
+@eqx.filter_jit
+def _pipeline_jit(tree, uv, root_depth, focal, anchor, anchor_frame, order, options):
+    from ._reflections import choose_kernel, over_sequences
+
+    def one(a, b, c, d):
+        choice = choose_kernel(tree, a, b, c, d, anchor_frame, order)
+        start = choice.median_lengths  # robust to a wrong detection; directions from joints
+        return choice, lift_kernel(tree, a, b, c, choice.joints, start, options)
+
+    return over_sequences(one, tree, uv, root_depth, focal, anchor)
+
+
+def lift(
+    tree: JointTree,
+    uv: Float[ArrayLike, "*b n_frames n_obs 2"],
+    root_depth: Float[ArrayLike, "*b n_frames"],
+    focal: ArrayLike,
+    *,
+    anchor: Int[ArrayLike, "*b n_parts"] | None = None,
+    anchor_frame: int = 0,
+    order: int = 2,
+    options: LiftOptions | None = None,
+):
+    """The whole pipeline in one compiled call: reflections and Webb's lengths by
+    continuity (`diffbody.choose_reflections`), then the joint refinement (`refine`) from
+    its joints and robust (median) lengths. Returns (`ReflectionChoice`, `Lifting`);
+    batches as `webb`."""
+    from ._reflections import check_anchor
+
+    options = options or LiftOptions()
+    uv, depth, f = check_sequence(tree, uv, root_depth, focal, "lift")
+    if uv.shape[-3] < 3:
+        raise ValueError(f"lift: needs at least 3 frames (accelerations), got {uv.shape[-3]}")
+    a = check_anchor(tree, anchor, uv.shape, anchor_frame, order, "lift")
+    _check_options(options, "lift")
+    dtype = jnp.zeros(()).dtype
+    options = jax.tree.map(lambda v: jnp.asarray(v, dtype), options)
+    return _pipeline_jit(
+        tree,
+        jnp.asarray(uv, dtype),
+        jnp.asarray(depth, dtype),
+        jnp.asarray(f, dtype),
+        jnp.asarray(a, jnp.int32),
+        anchor_frame % uv.shape[-3],
+        order,
+        options,
+    )
