@@ -14,7 +14,8 @@ median body (`load_body(variant="male50")`, built from those medians). It is 1 w
 model has the landmark itself (the joints placed at ANSUR heights, the spheres sized from
 ANSUR breadths); elsewhere it absorbs a constant landmark offset, e.g. the acromion lies 15 mm
 outside the shoulder joint. The female median body, built the same way, checks the factors:
-tests/test_measurements.py gives each measurement's agreement with the female medians.
+tests/anthropometry/test_anthropometry.py gives each measurement's agreement with the
+female medians.
 """
 
 from collections.abc import Callable
@@ -108,7 +109,7 @@ class Measurement(NamedTuple):
 
 
 # Calibration factors: ANSUR II male median / the male50 body's model value (module
-# docstring); computed by tests/test_measurements.py::test_calibration_factors.
+# docstring); computed by tests/anthropometry/test_anthropometry.py::test_calibration_factors.
 MEASUREMENTS: dict[str, Measurement] = {
     "stature": Measurement(
         lambda g: g.top("head"),

@@ -20,7 +20,7 @@ import numpy as np
 def data_file(name: str) -> Path:
     """A file of the embedded data: data/ of a source checkout or of the installed wheel."""
     for folder in (
-        Path(__file__).resolve().parent.parent / "data",  # a source checkout
+        Path(__file__).resolve().parents[2] / "data",  # a source checkout
         Path(str(resources.files("diffbody"))) / "data",  # an installed wheel
     ):
         if (folder / name).is_file():

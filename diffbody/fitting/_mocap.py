@@ -77,7 +77,7 @@ PROPORTION_SD = 0.1
 RADIAL_MEASUREMENTS = ("bideltoidbreadth", "hipbreadth", "chestdepth", "headlength")
 MIN_MARKERS = 3  # a frame with fewer present markers cannot be placed: FAILED
 # The length measurements of ANSUR II that the axial scale factors decide (they carry at
-# least 80 % of each: tests/test_mocap.py). Breadths, depths and the weight depend on the
+# least 80 % of each: tests/fitting/test_mocap.py). Breadths, depths and the weight depend on the
 # radii and masses.
 PRIOR_MEASUREMENTS = (
     "stature",

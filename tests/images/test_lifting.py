@@ -242,7 +242,7 @@ def test_semi_real_walk_joints(tree):
     L = np.linalg.norm(joints[:, list(tree.part_end)] - joints[:, list(tree.part_start)], axis=-1)
     assert np.all(L.std(axis=0) < 0.01)
     assert 0.40 < np.median(L[:, tree.part_names.index("left_hip->left_knee")]) < 0.50
-    root = Path(__file__).resolve().parent.parent / "data" / "mocap"
+    root = Path(__file__).resolve().parents[2] / "data" / "mocap"
     if not (root / "subject01_walk1.trc").exists():
         pytest.skip("data/mocap is not in this checkout")
     from diffbody.fitting._markers import read_trc
