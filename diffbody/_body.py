@@ -1,5 +1,5 @@
-"""The body model (seed 000, DESIGN section 2): segments, joints, spheres, features, limits,
-and the spine database (seed 004) that drives its vertebrae.
+"""The body model (seed 000, docs/design.md, section 2): segments, joints, spheres, features,
+limits, and the spine database (seed 004) that drives its vertebrae.
 
 A `Body` is an immutable pytree. Its static fields (names, parent indices, levels of the
 tree, kinds) are compile-time constants; its arrays (lengths, frames, limits, spheres,

@@ -1,4 +1,4 @@
-"""The one tree walk of diffbody (DESIGN section 3, "One walk").
+"""The one tree walk of diffbody (docs/design.md, section 3, "One walk").
 
 A `Chain` is built once on the host: a set of segments in topological order, each with the
 slot its parent's state comes from. Slots 0..m-1 are the chain's own segments; slots m...

@@ -1,4 +1,4 @@
-"""Bone descriptors over time (DESIGN sections 4 and 7): for each bone of a fitted motion,
+"""Bone descriptors over time (docs/design.md, sections 4 and 7): for each bone of a fitted motion,
 seed 001's spherical descriptors (theta, phi, r) in its parent's local coordinate system and
 diffbody's own pose angles (theta, phi, tau) in its socket, made continuous over time.
 

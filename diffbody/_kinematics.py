@@ -1,4 +1,4 @@
-"""Forward kinematics with twist propagated to the surface (seed 000, DESIGN section 3).
+"""Forward kinematics with twist propagated to the surface (seed 000, docs/design.md, section 3).
 
 `forward` is a pure, un-jitted function of one body and one pose: compose it under
 jax.jit / jax.vmap / jax.grad. Batching is jax.vmap over poses (or bodies).
@@ -51,7 +51,7 @@ def socket_frames(
     (all when None) whose pose angles are `angles`.
 
     Limbs with a table (seed 000's left arm, its mirror, the legs) use it; all other
-    segments use the swing default of DESIGN section 4: the smallest rotation taking the
+    segments use the swing default of docs/design.md, section 4: the smallest rotation taking the
     standard direction to the current one, applied to the standard-position frame.
     """
     idx = np.arange(body.n_segments) if idx is None else np.asarray(idx)
@@ -114,7 +114,7 @@ def socket_frames_from_swing(
 ) -> Float[Array, "k 3 3"]:
     """Base frames in their sockets from swing vectors, without passing through (theta, phi),
     of segments `idx` (all when None): smooth at the poles of the sockets, where hanging
-    limbs and the spine rest (DESIGN 6).
+    limbs and the spine rest (docs/design.md, section 6).
 
     For the swing default the frame is R_rest exp(w). A limb with a table turns that frame
     about its own Z by the table's twist relative to it, read off at the same direction.

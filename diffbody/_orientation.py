@@ -9,7 +9,7 @@ Two spherical conventions, each named for what it holds:
   v = r (cos theta, sin theta sin phi, sin theta cos phi).
 
 A segment's base frame in its socket is R = Rz(theta) Ry(phi) Rz(s(theta, phi) + tau)
-(DESIGN section 1), where s is the standard twist of this module.
+(docs/design.md, section 1), where s is the standard twist of this module.
 """
 
 import jax.numpy as jnp

@@ -1,5 +1,5 @@
 """Analytic posture from joint positions, and the standard orientation as a post-projection
-(seed 000, "Standard Orientation"; DESIGN sections 3 and 4).
+(seed 000, "Standard Orientation"; docs/design.md, sections 3 and 4).
 
 "Whenever the limbs are placed into a position by specifying the joint positions, the
 resulting orientation of the segments is computed and compared to the orientation given by
@@ -54,7 +54,7 @@ def pose_from_joint_positions(
     joint_positions: Float[ArrayLike, "n_joint 3"],
     deviation: Float[ArrayLike, " n_seg"] | None = None,
 ) -> Pose:
-    """The analytic posture that reproduces measured joint positions (DESIGN section 3).
+    """The analytic posture that reproduces measured joint positions (docs/design.md, section 3).
 
     Walking the tree from the root, each segment's direction is read in its socket frame,
     giving (theta, phi); its twist is set by the standard orientation, i.e. tau =

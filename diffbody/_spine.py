@@ -3,7 +3,7 @@ vertebrae set from spine angles. The database they read is `Spine` (`_body`), lo
 `load_spine` (`_spine_file`).
 
 Angles are (flexion, axial, lateral) per joint, in radians, right-handed about the body's
-Y (left), Z (up) and X (forward) axes (DESIGN section 5):
+Y (left), Z (up) and X (forward) axes (docs/design.md, section 5):
 
 - flexion > 0 bends forward (extension < 0),
 - axial > 0 turns to the left,

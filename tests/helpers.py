@@ -1,7 +1,7 @@
 """Shared test helpers: an independent plain-NumPy forward kinematics for diffbody.
 
 This module does not import JAX or diffbody. It reads a body file (data/SCHEMA.md) directly
-and walks the tree with NumPy, written from the source documents (seed 000, DESIGN.md
+and walks the tree with NumPy, written from the source documents (seed 000, docs/design.md,
 sections 1-4) and not from diffbody's code, so the tests can check diffbody against it.
 
 Conventions (the contract the reference and diffbody share):

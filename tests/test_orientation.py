@@ -103,7 +103,7 @@ def test_left_arm_table_values_from_the_seed():
 
 @pytest.mark.parametrize("limb", LIMBS)
 def test_hanging_limb_has_standard_position_cross_of_axes(limb):
-    # X forward, Y right, Z down whatever theta: the built-in consistency check of DESIGN 1.
+    # X forward, Y right, Z down whatever theta: the consistency check of docs/design.md, section 1.
     for theta in np.linspace(-np.pi, np.pi, 13):
         np.testing.assert_allclose(
             frame(theta, np.pi, limb), np.diag([1.0, -1.0, -1.0]), atol=1e-12

@@ -1,4 +1,4 @@
-"""Body measurements (DESIGN section 7) as differentiable functions of a body's dimensions,
+"""Body measurements (docs/design.md, section 7) as differentiable functions of a body's dimensions,
 each following its ANSUR II definition (Gordon et al. 2014, NATICK/TR-15/007) as closely as
 the sphere model allows.
 

@@ -1,6 +1,6 @@
-"""The population prior (DESIGN section 7): the joint distribution of the body measurements of
-one sex in ANSUR II (Gordon et al. 2014; data/ansur2_subjects.csv), to condition a body on
-the few measurements that are known.
+"""The population prior (docs/design.md, section 7): the joint distribution of the body
+measurements of one sex in ANSUR II (Gordon et al. 2014; data/ansur2_subjects.csv), to
+condition a body on the few measurements that are known.
 
 It is a Gaussian of the measurements' logarithms. Body measurements are positive and their
 spread grows with their size, so their logarithms are closer to Gaussian and a conditional

@@ -1,4 +1,4 @@
-"""Scaling a body to measurements (DESIGN section 7): `scale_to`, `scale_to_percentile`,
+"""Scaling a body to measurements (docs/design.md, section 7): `scale_to`, `scale_to_percentile`,
 `scale_population`.
 
 The unknowns are the axial and radial scale factors of the scale groups

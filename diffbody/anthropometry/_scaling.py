@@ -1,4 +1,4 @@
-"""Scaling a body's dimensions (DESIGN section 7): per-segment axial and radial scale
+"""Scaling a body's dimensions (docs/design.md, section 7): per-segment axial and radial scale
 factors, as OpenSim's scale factors scale everything attached to a body.
 
 A segment's **axial** scale multiplies its length and the Z (along-the-segment) coordinate

@@ -112,7 +112,7 @@ def _quat(R: np.ndarray) -> np.ndarray:
 
 
 def export_mjcf(body: Body, path: str | os.PathLike) -> Path:
-    """Write the body as a MuJoCo MJCF model (DESIGN section 2 as rigid links).
+    """Write the body as a MuJoCo MJCF model (docs/design.md, section 2 as rigid links).
 
     The file, and what it holds:
 

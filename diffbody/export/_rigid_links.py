@@ -2,7 +2,7 @@
 exporters share, a pose's hinge values and the links' geometry.
 
 Both formats describe rigid links joined by one-degree-of-freedom joints, so each segment
-becomes three hinges about the axes of seed 000's orientation (DESIGN section 1):
+becomes three hinges about the axes of seed 000's orientation (docs/design.md, section 1):
 
     R_socket_twisted = Rz(theta) Ry(phi) Rz(s(theta, phi) + tau)
 

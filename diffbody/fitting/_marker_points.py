@@ -1,4 +1,4 @@
-"""Markers on a walked body, with closed-form derivatives (DESIGN sections 6 and 7): the
+"""Markers on a walked body, with closed-form derivatives (docs/design.md, sections 6 and 7): the
 unknowns of a marker fit (`mocap_layout`), the markers' world positions for them
 (`tree_markers`, one walk) and the rigid start that places a body on measured markers.
 
@@ -194,7 +194,7 @@ def tree_markers(
     problem's body with segment `lengths`, for the posture's free vector x: one walk of the
     layout's chain.
 
-    Its derivatives are in closed form (DESIGN section 6: a rotation rate w about a joint c
+    Its derivatives are in closed form (docs/design.md, section 6: a rotation rate w about a joint c
     moves a point p below it by w x (p - c)), with the rates of the segments' frames in
     their sockets from the walk-free `socket_state`: a Jacobian costs one walk instead of
     one per unknown."""

@@ -1,4 +1,4 @@
-"""Motion-capture marker files (DESIGN section 7): TRC, and C3D through ezc3d, read into a
+"""Motion-capture marker files (docs/design.md, section 7): TRC, and C3D through ezc3d, read into a
 `MarkerTrial` in diffbody's world frame and metres.
 
 A lab records in its own axes and units. `LAB_AXES` names the lab frames diffbody knows as

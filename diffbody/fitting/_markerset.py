@@ -1,4 +1,4 @@
-"""Marker sets (DESIGN section 7): which body segment carries each motion-capture marker,
+"""Marker sets (docs/design.md, section 7): which body segment carries each motion-capture marker,
 where it sits on it, how far registration may move it and how much it counts in IK.
 
 A marker set file (`data/markersets/<name>.json`, format in data/markersets/README.md)

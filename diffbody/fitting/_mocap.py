@@ -1,4 +1,4 @@
-"""Motion capture (DESIGN section 7): a body scaled and its markers registered on a static
+"""Motion capture (docs/design.md, section 7): a body scaled and its markers registered on a static
 trial (`scale_and_register`), then the posture of every frame of a trial (`fit_motion`).
 
 Both are weighted least squares over the reach core's unknowns (`_unknowns`: swing vectors

@@ -1,4 +1,4 @@
-"""Fitting a posture and a body's dimensions to a measured sphere cloud (DESIGN section 7).
+"""Fitting a posture and a body's dimensions to a measured sphere cloud (docs/design.md, section 7).
 
 Unknowns: the pose as the reach core's free vector (`_unknowns`, the whole tree, the root
 placement free, the spine as its Bendspine target, every limit exact through the bounded
@@ -415,7 +415,8 @@ def fit_spheres(
     fit: tuple[str, ...] = FIT_NAMES,
     init: Pose | None = None,
 ) -> SphereFit:
-    """Fit a posture and the body's dimensions to a measured sphere cloud (DESIGN 7).
+    """Fit a posture and the body's dimensions to a measured sphere cloud (docs/design.md,
+    section 7).
 
     centers (m, 3) and radii (m,), in m (checked on the host, so that a wrong shape gets
     a message, not a type error): the measured spheres, any number, outliers allowed.

@@ -1,5 +1,5 @@
 """The standard orientation as a post-projection after a solve (seed 000, "Standard
-Orientation"; DESIGN section 4): whatever path the solver took, twists that no target
+Orientation"; docs/design.md, section 4): whatever path the solver took, twists that no target
 depends on go back to the standard orientation, with every joint where the solve put it."""
 
 import jax

@@ -1,5 +1,5 @@
 """One reach problem: (chain, unknowns, start) -> weighted residuals, one walk per
-evaluation (DESIGN section 6).
+evaluation (docs/design.md, section 6).
 
 Everything that does not change during a solve (the start's frames above the first
 unknown, the bounds, the pull toward the start) is computed once, when the problem is built;

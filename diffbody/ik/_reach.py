@@ -1,4 +1,4 @@
-"""Reach: inverse kinematics with optimistix (DESIGN section 6).
+"""Reach: inverse kinematics with optimistix (docs/design.md, section 6).
 
 A solve runs in phases, as a person reaches: first the limbs (every unknown below the
 trunk: clavicle, arm, hand; thigh, shank, foot; the head on the neck), with the spine, the
@@ -377,7 +377,7 @@ def solve_reach(
     tol_position: float = 1e-3,
     tol_angle: float = float(np.deg2rad(1.0)),
 ) -> ReachResult:
-    """Reach targets with the body (inverse kinematics, DESIGN section 6).
+    """Reach targets with the body (inverse kinematics, docs/design.md, section 6).
 
     Unknowns: the swing vector and twist, within their limits, of every segment on a
     target's chain (or of those named in `segments`; a segment whose ranges are all zero

@@ -1,4 +1,4 @@
-"""Where a solve starts (DESIGN section 6): the start pose first, then fixed points spread
+"""Where a solve starts (docs/design.md, section 6): the start pose first, then fixed points spread
 over the free variables' range.
 
 Start 0 is the caller's `init`, so a reachable target keeps the most natural posture. Start

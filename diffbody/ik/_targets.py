@@ -1,4 +1,4 @@
-"""Reach targets (DESIGN section 6): what the user asks for, checked on the host and turned
+"""Reach targets (docs/design.md, section 6): what the user asks for, checked on the host and turned
 into index arrays for the solver."""
 
 import math

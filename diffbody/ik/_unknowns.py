@@ -1,4 +1,4 @@
-"""The unknowns of a reach problem and their bounded maps (DESIGN section 6).
+"""The unknowns of a reach problem and their bounded maps (docs/design.md, section 6).
 
 Each unknown is a bounded map of a free variable u, so the solver cannot leave the
 admissible set and the limits hold exactly: v = mid + half sin(u) into [lo, hi] (unlike a

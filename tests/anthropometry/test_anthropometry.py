@@ -1,4 +1,5 @@
-"""Measurements, the population prior, and scaling bodies to measurements (DESIGN section 7)."""
+"""Measurements, the population prior, and scaling bodies to measurements (docs/design.md,
+section 7)."""
 
 import csv
 

@@ -276,7 +276,7 @@ def test_arm_reachable_targets_leave_the_trunk_where_it_was(male50):
 
 def test_the_reach_ladder_bends_the_spine_only_beyond_the_arm(male50):
     """Targets ever farther in front of the shoulder: the spine stays at rest while the arm
-    reaches, then bends forward, more the farther the target (DESIGN section 6)."""
+    reaches, then bends forward, more the farther the target (docs/design.md, section 6)."""
     rest = male50.rest_pose()
     shoulder = np.asarray(db.forward(male50, rest).joint_positions)[
         male50.joint_index("left_shoulder")
