@@ -12,14 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ._args import add_body_args, body_from_args, check_output, finite_float
+
 PICTURE_FRAMES = 4  # frames drawn in the PNG, evenly over the trial
 
 
 def add_mocap_command(sub) -> None:
     """Add the `mocap` subcommand to the `diffbody` command line's subparsers."""
-    # Imported here, not at the top: `_cli` may import this module while it loads.
-    from ._main import finite_float
-
     p = sub.add_parser(
         "mocap",
         help="scale the body on a static marker trial and fit every frame of a motion (TRC/C3D)",
@@ -27,8 +26,7 @@ def add_mocap_command(sub) -> None:
         "on the static trial, then fits the posture of every frame of the motion trial to its "
         "markers. Marker files: .trc (units from the header) or .c3d (needs ezc3d).",
     )
-    p.add_argument("--variant", default="male50", help="embedded body: male50 or female50")
-    p.add_argument("--body", default=None, help="a body JSON file instead (data/SCHEMA.md)")
+    add_body_args(p)
     p.add_argument("static", help="static trial: the subject standing still (.trc or .c3d)")
     p.add_argument("motion", help="trial to fit, frame by frame (.trc or .c3d)")
     p.add_argument(
@@ -89,7 +87,6 @@ def _mocap(args) -> int:
     from ..fitting._markerset import load_markerset, match_markers
     from ..fitting._mocap import fit_motion, scale_and_register
     from ..fitting._sphere_fit import FitStatus
-    from ._main import body_from_args, check_output
 
     check_output("--out", args.out)
     check_output("--png", args.png)

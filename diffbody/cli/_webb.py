@@ -25,7 +25,7 @@ import io
 import math
 from pathlib import Path
 
-from ._main import check_output, positive_float
+from ._args import check_output, positive_float
 
 
 def _pixel(text: str) -> float:
@@ -225,7 +225,7 @@ def _webb(args) -> int:
 
 
 def add_webb_command(sub) -> None:
-    """Add the `webb` subcommand to the argparse subparsers of `diffbody._cli.main`."""
+    """Add the `webb` subcommand to the argparse subparsers of `diffbody.cli.main`."""
     p = sub.add_parser(
         "webb",
         help="lengths and 3D joints from 2D joint positions in an image sequence (seed 003)",

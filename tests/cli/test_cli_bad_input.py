@@ -4,7 +4,8 @@ never a traceback. Every case fails before any solve, so these run in millisecon
 import numpy as np
 import pytest
 
-from diffbody.cli._main import _read_targets, main
+from diffbody.cli._batch import _read_targets
+from diffbody.cli._main import main
 
 REACH = ["reach", "--effector", "left_hand.palm", "--target", "0.3", "0.2", "1.0"]
 
@@ -147,7 +148,9 @@ def _command(kind: str, tmp_path) -> list[str]:
 )
 def test_output_into_a_missing_folder(tmp_path, capsys, monkeypatch, kind, option):
     # The check comes before the body is loaded: a loader that ran would fail the test.
-    monkeypatch.setattr("diffbody.cli._main._body", lambda args: pytest.fail("loaded the body"))
+    monkeypatch.setattr(
+        f"diffbody.cli._{kind}.body_from_args", lambda args: pytest.fail("loaded the body")
+    )
     out = tmp_path / "missing" / "out.file"
     err = _fails(_command(kind, tmp_path) + [option, str(out)], capsys)
     assert f"{option} {out}: folder {out.parent} does not exist" in err
@@ -159,7 +162,9 @@ def test_output_into_a_missing_folder(tmp_path, capsys, monkeypatch, kind, optio
     [("reach", "--out"), ("reach", "--png"), ("batch", "--out"), ("render", "--out")],
 )
 def test_output_is_a_folder(tmp_path, capsys, monkeypatch, kind, option):
-    monkeypatch.setattr("diffbody.cli._main._body", lambda args: pytest.fail("loaded the body"))
+    monkeypatch.setattr(
+        f"diffbody.cli._{kind}.body_from_args", lambda args: pytest.fail("loaded the body")
+    )
     err = _fails(_command(kind, tmp_path) + [option, str(tmp_path)], capsys)
     assert f"{option} {tmp_path}: is a folder" in err
 
@@ -180,7 +185,7 @@ def test_output_under_a_file(tmp_path, capsys):
     ],
 )
 def test_unknown_names(male50, monkeypatch, capsys, extra, message):
-    monkeypatch.setattr("diffbody.cli._main._body", lambda args: male50)  # loaded once
+    monkeypatch.setattr("diffbody.cli._reach.body_from_args", lambda args: male50)  # loaded once
     argv = REACH + extra  # a second --effector replaces the first
     err = _fails(argv, capsys)
     assert message in err and "diffbody info --names" in err

@@ -1,0 +1,132 @@
+"""What the `diffbody` commands share: argparse types, the body and solver options, checks
+made before any loading or solving, and the persistent compilation cache."""
+
+import argparse
+import math
+import os
+
+
+def keep_compiled() -> None:
+    """Turn on JAX's persistent compilation cache for the command line, so that a repeated
+    `reach` or `batch` reuses what an earlier run compiled (README, "Benchmarks"). The
+    folder is $JAX_COMPILATION_CACHE_DIR when set, else $XDG_CACHE_HOME/diffbody/jax
+    (~/.cache/diffbody/jax); DIFFBODY_NO_CACHE=1 leaves the cache off. Every compiled
+    function is kept, however quick to compile (JAX keeps only those over 1 s by default):
+    reading one back costs a few milliseconds, compiling it tens."""
+    from pathlib import Path
+
+    import jax
+
+    if os.environ.get("DIFFBODY_NO_CACHE") == "1":
+        return
+    if not jax.config.jax_compilation_cache_dir:
+        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+        jax.config.update("jax_compilation_cache_dir", str(base / "diffbody" / "jax"))
+    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer (1, 2, ...), got {text!r}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite number (nan and inf parse as floats but are no position)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number in metres, got {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
+
+
+def view(text: str):
+    """argparse type: a named view or "AZ,EL" (camera azimuth and elevation, degrees)."""
+    from .._render import VIEWS
+
+    if text in VIEWS:
+        return text
+    parts = text.split(",")
+    try:
+        az, el = (float(x) for x in parts)
+    except ValueError:
+        az = el = math.nan
+    if not (math.isfinite(az) and math.isfinite(el)):
+        raise argparse.ArgumentTypeError(
+            f"unknown view {text!r}; use one of {', '.join(VIEWS)} "
+            "or AZ,EL (camera azimuth and elevation in degrees, e.g. 30,15)"
+        )
+    return (az, el)
+
+
+def add_body_args(p) -> None:
+    """Add --variant and --body, the body a command works on, to a sub-parser."""
+    p.add_argument("--variant", default="male50", help="embedded body: male50 or female50")
+    p.add_argument("--body", default=None, help="a body JSON file instead (data/SCHEMA.md)")
+
+
+def add_solver_args(p) -> None:
+    """Add --no-spine, --segments and --starts, the reach solver's options, to a sub-parser."""
+    p.add_argument("--no-spine", action="store_true", help="keep the spine at rest")
+    p.add_argument("--segments", nargs="+", default=None, help="only these segments move (names)")
+    p.add_argument("--starts", type=positive_int, default=8, help="most solver starts (default 8)")
+
+
+def check_output(option: str, path: str | None) -> None:
+    """Refuse an output file that cannot be written, before any loading or solving, so a
+    typo in a folder name does not cost a whole solve."""
+    if path is None:
+        return
+    if not path:
+        raise ValueError(f"{option}: empty file name")
+    folder = os.path.dirname(os.path.abspath(path))
+    if os.path.isdir(path):
+        raise ValueError(f"{option} {path}: is a folder; give a file name")
+    if not os.path.exists(folder):
+        raise ValueError(f"{option} {path}: folder {folder} does not exist")
+    if not os.path.isdir(folder):
+        raise ValueError(f"{option} {path}: {folder} is not a folder")
+    if not os.access(folder, os.W_OK):
+        raise ValueError(f"{option} {path}: cannot write in folder {folder}")
+
+
+def body_from_args(args):
+    """The body that --body (a file) or else --variant (an embedded body) names."""
+    from ..files._body_file import load_body
+
+    return load_body(args.body, variant=args.variant)
+
+
+def check_names(body, effectors: list[str], segments: list[str] | None) -> None:
+    """Unknown effector or segment names, reported with the option before any solve."""
+    from ..ik._targets import Target, resolve_targets
+
+    hint = " (diffbody info --names lists them)"
+    try:
+        resolve_targets(body, [Target.position(e, [0.0, 0.0, 0.0]) for e in effectors])
+    except KeyError as e:
+        raise KeyError(f"--effector: {e.args[0]}{hint}") from None
+    for name in segments or []:
+        try:
+            body.segment_index(name)
+        except KeyError as e:
+            raise KeyError(f"--segments: {e.args[0]}{hint}") from None

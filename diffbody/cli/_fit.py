@@ -1,0 +1,120 @@
+"""The `diffbody fit` command: the body's dimensions and pose fitted to a measured sphere cloud
+(.npz), the fitted body and its pose written."""
+
+import dataclasses
+import os
+
+from ._args import add_body_args, body_from_args, check_output
+
+
+def add_fit_command(sub) -> None:
+    """Add the `fit` subcommand to the `diffbody` command line's subparsers."""
+    p = sub.add_parser(
+        "fit",
+        help="fit the body's dimensions and pose to a measured sphere cloud (.npz)",
+        description="The cloud: numpy.savez(path, centers=(m, 3), radii=(m,)) in metres, "
+        "optionally correspondences=(m,) model sphere indices (-1 for none).",
+    )
+    add_body_args(p)
+    p.add_argument("cloud", help=".npz with centers, radii (m) [, correspondences]")
+    p.add_argument("--out", required=True, help="fitted body JSON to write (data/SCHEMA.md)")
+    p.add_argument("--png", default=None, help="PNG of the fitted body over the cloud")
+    p.add_argument("--name", default=None, help="the fitted body's name in the file")
+    p.add_argument(
+        "--fit",
+        nargs="+",
+        choices=["pose", "lengths", "radii"],
+        default=["pose", "lengths", "radii"],
+        help="what moves (default all three)",
+    )
+    p.set_defaults(run=_fit)
+
+
+def _read_cloud(path: str):
+    """centers (m, 3), radii (m,) and correspondences (m,) or None from an .npz file."""
+    import numpy as np
+
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (ValueError, OSError) as e:
+        if isinstance(e, (FileNotFoundError, IsADirectoryError, PermissionError)):
+            raise
+        raise ValueError(
+            f"{path}: not a NumPy .npz file ({e}); write one with "
+            "numpy.savez(path, centers=(m, 3) array in m, radii=(m,) array in m)"
+        ) from None
+    if not hasattr(data, "files"):
+        raise ValueError(f"{path}: a single array, not an .npz archive of named arrays")
+    for key in ("centers", "radii"):
+        if key not in data.files:
+            raise ValueError(
+                f"{path}: no array {key!r} (found {sorted(data.files)}); give centers=(m, 3) "
+                "and radii=(m,) in m, and optionally correspondences=(m,) model sphere indices"
+            )
+    match = data["correspondences"] if "correspondences" in data.files else None
+    return data["centers"], data["radii"], match
+
+
+def _fit(args) -> int:
+    import json
+
+    import numpy as np
+
+    from ..files._saving import save_body
+    from ..fitting._sphere_fit import INLIER_DISTANCE, FitStatus, fit_spheres
+
+    check_output("--out", args.out)
+    check_output("--png", args.png)
+    body = body_from_args(args)
+    centers, radii, match = _read_cloud(args.cloud)
+    try:
+        out = fit_spheres(body, centers, radii, correspondences=match, fit=tuple(args.fit))
+    except ValueError as e:
+        raise ValueError(f"{args.cloud}: {e}") from None
+    fitted = dataclasses.replace(out.body, name=args.name or f"{body.name}-fitted")
+    status = FitStatus(int(out.status)).name.lower()
+    inliers = np.asarray(out.inliers)
+    residual = np.asarray(out.residuals)[inliers]
+    print(
+        f"{args.cloud}: {len(inliers)} spheres, {int(inliers.sum())} inliers (within "
+        f"{1000 * INLIER_DISTANCE:.0f} mm); fit {status} in {int(out.steps)} solver steps"
+    )
+    if residual.size:
+        print(f"inlier residual: median {1000 * np.median(residual):.1f} mm")
+    from ..anthropometry._scaling import SCALE_GROUPS
+
+    print("scale group        axial  radial")
+    for name, a, r in zip(SCALE_GROUPS, np.asarray(out.axial), np.asarray(out.radial)):
+        print(f"  {name:<15} {a:7.4f} {r:7.4f}")
+    path = save_body(fitted, args.out)
+    pose_path = path.with_name(f"{path.stem}.pose.json")
+    angles = np.degrees(np.asarray(out.pose.angles))
+    spine = out.pose.spine_target
+    data = {
+        "cloud": args.cloud,
+        "status": status,
+        "steps": int(out.steps),
+        "position": np.asarray(out.pose.position).tolist(),
+        "angles_deg": {n: angles[i].tolist() for i, n in enumerate(body.segment_names)},
+        "spine_target_deg": None if spine is None else np.degrees(np.asarray(spine)).tolist(),
+        "axial": dict(zip(SCALE_GROUPS, np.asarray(out.axial).tolist())),
+        "radial": dict(zip(SCALE_GROUPS, np.asarray(out.radial).tolist())),
+        "residuals": np.asarray(out.residuals).tolist(),
+        "inliers": inliers.tolist(),
+    }
+    with open(pose_path, "w") as f:
+        json.dump(data, f, indent=1)
+    print(f"wrote {path} (the fitted body) and {pose_path} (its pose and the fit)")
+    if args.png:
+        from .._render import render
+
+        render(
+            fitted,
+            out.pose,
+            args.png,
+            ["front", "left"],
+            title=f"diffbody fit: {os.path.basename(args.cloud)} (outliers in red)",
+            cloud=(centers, radii, inliers),
+        )
+        print(f"wrote {args.png}")
+    return 0 if out.status != FitStatus.FAILED else 1
