@@ -1,13 +1,15 @@
-"""The one tree walk of diffbody (docs/design.md, section 3, "One walk").
+"""The one walk of diffbody's segment tree (docs/design.md, section 3, "The one walk").
 
 A `Chain` is built once on the host: a set of segments in topological order, each with the
 slot its parent's state comes from. Slots 0..m-1 are the chain's own segments; slots m...
 are the *bases*, fixed states the chain hangs from (the world for the whole body; for a
 solver, the frames of the segments above the first unknown, read once from the start).
 
-`walk` is the only function in the package that walks the segment tree. Forward kinematics,
-the solvers' residuals, the post-projection, local frames, the posture from joints and the
-exports all call it with their own per-segment step.
+`walk` is the only function that composes posed frames down the tree: forward kinematics and
+the solvers' residuals (and through them the post-projection, pictures and exports), local
+frames and the posture from joints call it with their own per-segment step. The standard
+position needs no walk (every frame is the standard cross of axes): `_body.rest_geometry` sums
+it on the host, and anthropometry's `rest_points` as one product with an ancestor matrix.
 """
 
 import functools

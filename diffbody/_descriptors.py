@@ -1,21 +1,11 @@
-"""Bone descriptors over time (docs/design.md, sections 4 and 7): for each bone of a fitted motion,
+"""Bone descriptors over time (docs/design.md, section 4): for each bone of a fitted motion,
 seed 001's spherical descriptors (theta, phi, r) in its parent's local coordinate system and
-diffbody's own pose angles (theta, phi, tau) in its socket, made continuous over time.
+diffbody's own pose angles (theta, phi, tau) in its socket (rad, m), made continuous over time.
 
-Both angle pairs are spherical coordinates of a direction: an azimuth about an axis and a
-polar angle from it (seed 001: the inclination theta from x' and the azimuth phi about it;
-seed 000: the azimuth theta about the socket's Z and the polar angle phi from it). Read
-frame by frame they jump: the azimuth wraps at +-pi, and a bone swinging through its pole
-(a leg through the hanging direction, an arm raised through the vertical) flips its
-azimuth by pi while its polar angle folds back. `unwrap_directions` keeps them continuous
-by choosing, in each frame, the representation of the same direction nearest the previous
-frame's: (azimuth + 2 pi k, polar + 2 pi m) or (azimuth + pi + 2 pi k, -polar + 2 pi m).
-So the polar angle may leave [0, pi] (the leg swinging back continues past pi) and no
-180-degree flip appears. At the pole the azimuth is undefined, and within `POLE` of it too
-ill-conditioned to follow (a bone passing 1 degree beside its pole turns its azimuth by
-180 degrees within a few frames): there it is held at its last value (before the first
-frame beyond `POLE`, at that frame's), and the next frame beyond `POLE` continues through
-the pole or back, whichever is nearer.
+Read frame by frame both jump: the azimuth wraps at +-pi, and a bone through its pole flips its
+azimuth by pi while its polar angle folds back. `unwrap_directions` takes, in each frame, the
+representation of the same direction nearest the previous frame's, so the polar angle may
+leave [0, pi]; within `POLE` of a pole the azimuth is held.
 """
 
 import equinox as eqx

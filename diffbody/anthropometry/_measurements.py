@@ -1,21 +1,13 @@
-"""Body measurements (docs/design.md, section 7) as differentiable functions of a body's dimensions,
-each following its ANSUR II definition (Gordon et al. 2014, NATICK/TR-15/007) as closely as
-the sphere model allows.
+"""Body measurements (docs/design.md, section 7) as differentiable functions of a body's
+dimensions, each following its ANSUR II definition (Gordon et al. 2014, NATICK/TR-15/007) as
+closely as the sphere model allows: `measure`, `measurements`, `MEASUREMENTS`.
 
-Every measurement is taken on the standard position (standing, arms at the sides), where the
-geometry is `_scaling.rest_points`: heights from the floor (the lowest sphere), breadths and
-depths as extents of named segments' spheres, lengths between joints. Where ANSUR II measures
-in another posture (span with the arms out, sitting height, buttock-knee length seated), the
-posture is closed form: straight segments turned about a joint keep their lengths.
-
-A sphere model has no bony landmarks, so each definition uses the nearest model feature and a
-**calibration factor**: the ratio of ANSUR II's male median to the model's value on the male
-median body (`load_body(variant="male50")`, built from those medians). It is 1 where the
-model has the landmark itself (the joints placed at ANSUR heights, the spheres sized from
-ANSUR breadths); elsewhere it absorbs a constant landmark offset, e.g. the acromion lies 15 mm
-outside the shoulder joint. The female median body, built the same way, checks the factors:
-tests/anthropometry/test_anthropometry.py gives each measurement's agreement with the
-female medians.
+All are taken on the standard position (`rest_points`): heights above the floor (the lowest
+sphere), breadths and depths as extents of named segments' spheres, lengths between joints;
+span, sitting height and buttock-knee length in closed form in the survey's posture. Each is
+the nearest model feature times a calibration factor: the geometric mean, over the two median
+bodies, of ANSUR II's median over the model's value (1 where the model has the landmark).
+Metres; `weightkg` in kg.
 """
 
 from collections.abc import Callable
@@ -108,8 +100,9 @@ class Measurement(NamedTuple):
     definition: str
 
 
-# Calibration factors: ANSUR II male median / the male50 body's model value (module
-# docstring); computed by tests/anthropometry/test_anthropometry.py::test_calibration_factors.
+# Calibration factors: the geometric mean over male50 and female50 of ANSUR II's median / the
+# body's model value (module docstring); tests/anthropometry/test_anthropometry.py
+# ::test_calibration_factors recomputes them.
 MEASUREMENTS: dict[str, Measurement] = {
     "stature": Measurement(
         lambda g: g.top("head"),

@@ -1,29 +1,14 @@
 """Scaling a body to measurements (docs/design.md, section 7): `scale_to`, `scale_to_percentile`,
 `scale_population`.
 
-The unknowns are the axial and radial scale factors of the scale groups
-(`_scaling.SCALE_GROUPS`: 13 groups, 26 unknowns), solved by optimistix's Gauss-Newton. The
-residuals are relative deviations m / target - 1 (the logarithms' deviations to second order):
-
-- each given measurement against its value, with a standard deviation of 1e-5 (0.02 mm of
-  stature): reproduced;
-- the others against their median given the given ones under the population prior
-  (`PopulationPrior`, log space), whitened by the conditional covariance: they follow the
-  population where nothing is known;
-- each scale factor against 1 with weight 1e-3: the template decides what no measurement
-  sees (the clavicle's thickness, say).
-
-The weight is no residual: the masses scale with the volume and are then set to sum to the
-given weight, or to its conditional median.
-
-**Why it is fast.** Every length measurement is piecewise linear in the (not logarithmic)
-scale factors s: joints are sums of scaled lengths, sphere centres and radii scale linearly,
-and extents pick one sphere at each end. So within a piece m(s) = A s exactly, with A the
-Jacobian of `measure` (one `jax.jacfwd` at the template, shared by every person), and the
-residuals above are linear in s: each person's solve is a linear least-squares problem on
-a 20 x 26 matrix (Gauss-Newton's first step solves it). The exact measurements of the answer
-are then checked against A s; where an answer crossed into another piece (another sphere at
-an extent), A is recomputed there and that person solved again.
+Unknowns: the axial and radial factors of the 13 `SCALE_GROUPS` (26), by optimistix's
+Gauss-Newton. Residuals, as relative deviations m / target - 1: the given measurements
+(`GIVEN_SD`), the others against their conditional median under the `PopulationPrior`,
+whitened, and each factor against 1 (`TEMPLATE_PULL`). Masses follow the given weight, or its
+conditional median. Every length is piecewise linear in the factors, so within a piece the
+lengths are A s exactly (`linear_model_jit`: one `jax.jacfwd`) and each person's solve is linear
+least squares; an answer that leaves its piece is solved again with A recomputed there.
+Lengths in m, weight in kg.
 """
 
 import dataclasses

@@ -7,9 +7,11 @@ scale multiplies the off-axis (X, Y) coordinates and the sphere radii. Direction
 and the tree stay as they are, so a scaled body loads, renders, reaches and exports like the
 one it came from. Masses follow the volume, axial x radial^2, unless a total is given.
 
-`rest_points` is the standard position's geometry in JAX (the NumPy `rest_geometry`'s
-twin), so every measurement of a standard-position body is differentiable with respect to
-its dimensions.
+`rest_points` is the standard position's geometry in JAX, the twin of the NumPy
+`rest_geometry`: no walk, since every frame there is the standard cross of axes, but one
+product of a constant ancestor matrix with each segment's length x rest direction. Joints are
+then linear in the lengths, so every measurement of the standard position is differentiable,
+and piecewise linear, in the scale factors (docs/design.md, section 3).
 """
 
 import equinox as eqx

@@ -1,5 +1,5 @@
 """The body and spine file schemas (data/SCHEMA.md): schema names, the fields each object
-takes, and the physical ranges values must lie in. `_loading` and `_spine_file` read files
+takes, and the physical ranges values must lie in. `_body_file` and `_spine_file` read files
 against them; `_saving` writes files that satisfy them."""
 
 SCHEMA = "diffbody.body/1"

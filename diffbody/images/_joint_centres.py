@@ -1,25 +1,14 @@
 """Joint centres of the default joint tree from the markers of a motion-capture trial: the
-"semi-real" sequences of image-sequence analysis (real motion, a synthetic camera).
+"semi-real" sequences of image-sequence analysis (real motion, a synthetic camera;
+docs/design.md, section 8). Positions (frames, 15, 3) in m, world frame.
 
-Approximations, each a standard one or a documented stand-in (the walking trial of
-data/mocap has no markers on the joint centres themselves):
-
-- hips: Harrington et al. (2007) regression in the pelvis frame (origin mid-ASIS, x
-  anterior, y superior, z right): x = -0.24 PD - 9.9 mm, y = -0.30 PW - 10.9 mm,
-  z = +-(0.33 PW + 7.3 mm), PW the inter-ASIS distance, PD from mid-ASIS to the sacral
-  marker (standing for mid-PSIS); ``center_hip`` is the midpoint of the two;
-- knees and ankles: the static trial's medial and lateral knee and malleolus markers,
-  averaged, carried into the walk by the thigh and shank marker clusters (Cappozzo et
-  al. 1995, the calibrated anatomical systems technique): the knee is the mean of its
-  thigh- and shank-cluster reconstructions, the ankle its shank-cluster one;
-- shoulders: the acromion markers (no glenohumeral regression; the marker sits some 4-5
-  cm above the joint centre); elbows: the elbow markers (lateral epicondyle); wrists: the
-  midpoint of the two wrist markers;
-- top of the spine (``C7_T1``): the midpoint of the two acromion markers;
-- top of the head (``head.top``): the head-top marker.
-
-The distances between these points are not rigid (skin and marker motion, the trunk's own
-bending); a benchmark takes each part's median over the trial as its length.
+Standard approximations or documented stand-ins (the walking trial of data/mocap has no
+markers on the joint centres): hips by Harrington et al. (2007) (`hip_centres`), knees and
+ankles from the static trial's medial and lateral markers carried into the walk by the thigh
+and shank clusters (Cappozzo et al. 1995; the knee the mean of both clusters'), shoulders and
+elbows at their markers (the acromion marker sits some 4-5 cm above the joint), wrists between
+their two markers, ``C7_T1`` between the acromions, ``head.top`` at the head-top marker. The
+distances between these points are not rigid; a benchmark takes each part's median length.
 """
 
 import numpy as np
@@ -51,7 +40,10 @@ def _in_cluster(trial, static, cluster: tuple[str, str, str], landmarks: tuple[s
 
 
 def hip_centres(trial) -> tuple[np.ndarray, np.ndarray]:
-    """(left, right) hip joint centres (T, 3) m by Harrington et al. (2007)."""
+    """(left, right) hip joint centres (T, 3) m by Harrington et al. (2007), in the pelvis
+    frame (origin mid-ASIS, x anterior, y superior, z right): x = -0.24 PD - 9.9 mm,
+    y = -0.30 PW - 10.9 mm, z = +-(0.33 PW + 7.3 mm), PW the inter-ASIS distance, PD from
+    mid-ASIS to the sacral marker (standing for mid-PSIS)."""
     r, lft, sac = trial.marker("R.ASIS"), trial.marker("L.ASIS"), trial.marker("V.Sacral")
     origin = (r + lft) / 2
     z = (r - lft) / np.linalg.norm(r - lft, axis=-1, keepdims=True)

@@ -1,14 +1,9 @@
-"""The observed skeleton of an image sequence (seed 003, Webb, section II): a tree of joints
-given as data, one parent per joint, rooted at the reference joint whose depth is known.
-
-The rigid parts are the edges of the tree. Part k runs from its *starting point* (the joint
-nearer the reference) to its *ending point*; parts are numbered top-down (breadth first from
-the reference), so a part always comes after the parts above it (seed 003, III A).
-
-The default tree is the body's major joints (`default_joint_tree`): the pelvis centre
-(``center_hip``) as the reference, hips, knees, ankles, the top of the spine (``C7_T1``),
-the top of the head (the ``head.top`` feature), shoulders, elbows and wrists. Vertebrae
-are not observed: the pelvis-to-C7 part stands for the whole trunk.
+"""The observed skeleton of an image sequence (seed 003, Webb, II and III A; docs/design.md,
+section 8): a tree of joints, one parent per joint, rooted at the reference joint whose depth
+is known. Its edges are the rigid parts, numbered top-down (breadth first from the reference),
+so a part comes after the parts above it. The default tree (`default_joint_tree`) is the
+body's major joints with ``center_hip`` as the reference; the pelvis-to-C7 part stands for
+the trunk.
 
 Skeleton files (``diffbody webb --skeleton tree.json``) are JSON::
 
@@ -16,10 +11,10 @@ Skeleton files (``diffbody webb --skeleton tree.json``) are JSON::
      "joints": [{"name": "center_hip", "parent": null},
                 {"name": "left_hip", "parent": "center_hip"}, ...]}
 
-Exactly one joint has ``"parent": null``: the reference joint. Names are unique; a parent is
-the name of another joint of the file. The order of the joints is the order of the image
-points' columns. A name that is a joint or a feature of the body (``diffbody info --names``)
-lets the body give its position (synthetic sequences, joint limits).
+Exactly one joint has ``"parent": null`` (the reference joint); names are unique; a parent
+names another joint of the file; the joints' order is the image points' columns. A name that
+is a joint or a feature of the body (``diffbody info --names``) lets the body give its
+position (synthetic sequences, joint limits).
 """
 
 import json

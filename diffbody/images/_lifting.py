@@ -1,34 +1,15 @@
-"""Joint refinement of lengths and postures from an image sequence (beyond seed 003): one
-least-squares problem over all frames, from Webb's estimate, solved by optimistix.
+"""Joint refinement of lengths and postures from an image sequence (beyond seed 003;
+docs/design.md, section 8): `refine`, and `lift`, the whole pipeline from Webb's estimate.
 
-Unknowns: the log of every distinct length (left and right parts share one with
-`symmetric`), optionally the log focal length, and per frame the reference joint's (x, y)
-(its depth stays the known one) and each part's direction, as two coordinates in the plane
-tangent to its starting direction (`normalize(d0 + a e1 + b e2)`: no pole, and a part turns
-smoothly through the view perpendicular to its ray, where its reflection changes).
-
-Residuals:
-
-- the reprojection error of every joint (px / `pixel_sigma`), through a Cauchy loss of
-  scale `robust` sigmas so that a few wrong detections do not pull the fit;
-- the acceleration of every part's vector L d and of the reference joint (m per frame^2),
-  across the view / `accel_sigma` and along the optical axis / `depth_accel_sigma`. Static
-  analysis has no more equations than unknowns in a frame: every length above its lower
-  bound reprojects exactly, and only the motion's continuity tells noise from shape. Depth
-  is smoothed more loosely because the least-motion interpretation of foreshortening is a
-  longer part pointing along the ray: a stiff prior in depth lengthens parts;
-- the log lengths against the start's (/ `length_sigma`): Webb's lengths are lower bounds,
-  and a part that is never seen perpendicular to its ray cannot be lengthened by the data;
-  this keeps the smoothness prior from doing it;
-- optionally the body's hinge limits (knee, elbow: the angle between a part and the part
-  above it stays within the hinge's range).
-
-The focal length (`refine_focal`) is weakly observable: with the smoothness prior it moves
-a few per cent toward longer focal lengths; refine it only from a close start.
-
-The normal matrix couples frames only through the accelerations (three consecutive
-frames) and the shared lengths: `diffbody._banded.BandedSchurCholesky` solves it in
-O(T n^3), and optimistix's Levenberg-Marquardt drives the steps.
+One least-squares problem over all frames, by optimistix's Levenberg-Marquardt. Unknowns: the
+log of every distinct length (m; left and right shared with `symmetric`), optionally the log
+focal length (px), and per frame the reference joint's (x, y) (its depth is known) and each
+part's direction as two coordinates in the plane tangent to its start (no pole). Residuals,
+weighted by `LiftOptions`: reprojection (px) through a Cauchy loss; the accelerations of every
+part and of the reference (m per frame^2), looser along the optical axis; the log lengths
+toward the start (Webb's lengths are lower bounds); optionally the body's hinge limits. Frames
+couple only through the accelerations and the lengths, so `_banded.BandedSchurCholesky` solves
+each step in O(T n^3). The focal length is weakly observable: refine it only from a close start.
 """
 
 import enum

@@ -5,8 +5,8 @@ z along the optical axis (into the scene), so the focal plane is z = f and a poi
 is seen at (u, v) = (f x / z, f y / z) pixels from the principal point (the focal length
 f in pixels). A point is in front of the camera when z > 0.
 
-The body's world frame is X forward, Y left, Z up (docs/design.md, section 1). `look_at` places a
-camera in that world: `p_camera = R_camera_world @ (p_world - p_world_camera)`.
+The body's world frame is X forward, Y left, Z up (docs/design.md, section 1). `look_at`
+places a camera in that world: `p_camera = R_camera_world @ (p_world - p_world_camera)`.
 """
 
 from collections.abc import Sequence

@@ -1,28 +1,14 @@
-"""Choosing the reflections by continuity over time (beyond seed 003, which assumes them
-known: "once the correct reflection is chosen it can be tracked fairly easily").
+"""Reflections chosen by continuity over time (beyond seed 003, which assumes them known;
+docs/design.md, section 8): `choose_reflections`.
 
-Each rigid part's ending point is one of two points on its ray in every frame, so a tree
-of n joints has 2^(n-1) interpretations per frame (the interpretation tree that Lee & Chen
-analysed). Real motion is smooth, and a part passes from one reflection to the other only
-where the two meet, when it is seen perpendicular to its ray. `choose_reflections` picks,
-part by part from the reference down, the sequence of choices whose ending point moves
-least: the smallest sum of squared 3D velocities (or accelerations) of the joint, by
-dynamic programming (Viterbi) over the two choices per frame.
-
-It works offline, part by part: a part is decided once the whole trajectory of its starting
-point is known, so its lower bound is formula (1) over *all* frames (no reset, no order
-dependence: the seed's condition 3 is no longer needed), and its two candidates in every
-frame are taken at that length.
-
-The candidates are right only where the length is: a part never seen perpendicular to its
-ray gets a lower bound that is too short, its two candidates meet where they should not,
-and continuity may switch branches there.
-
-Continuity leaves one choice per part open: a trajectory mirrored through the feet of the
-perpendiculars is as smooth as the true one, so without more knowledge each part's branch
-is decided by which mirror image moves less (2^(n-1) interpretations for the whole sequence
-instead of 2^((n-1) T)). Given the reflections in one frame (`anchor`), continuity tracks
-them through the rest.
+Offline, part by part from the reference down: once its starting point's whole trajectory is
+known, a part's length is formula (1) over all frames (no reset, no order dependence), its
+two candidate ending points in every frame are taken at that length, and dynamic programming
+(Viterbi) picks the sequence of choices whose ending point has the least squared velocity or
+acceleration (m per frame). A mirrored trajectory is as smooth as the true one, so each part's
+branch stays open unless `anchor` gives the reflections in one frame. A part never seen
+perpendicular to its ray gets too short a length, and continuity may then switch branches
+where its two candidates meet.
 """
 
 import equinox as eqx

@@ -1,34 +1,15 @@
-"""Webb's static analysis of moving jointed objects (seed 003), faithfully.
+"""Webb's static analysis of moving jointed objects (seed 003, III B; docs/design.md, section
+8), faithfully: `webb`, `perpendicular_foot`, `ray_sphere`, `true_reflections`.
 
-The camera is a pinhole at the origin with its focal plane at z = f (`diffbody._pinhole`);
-the joints form a tree rooted at a reference joint whose depth is known in every frame
-(`diffbody.JointTree`). In each frame, top-down (seed 003, III B):
-
-1. The ending point of a rigid part lies on the sphere of radius r (the part's current
-   lower bound) about its starting point (x, y, z), and on the ray through the origin and
-   (u, v, f): the quadratic formula gives two points, the part's two *reflections*. The
-   reflection is given (the seed's assumption 1; `diffbody.choose_reflections` chooses it
-   by continuity instead).
-2. If the ray misses the sphere, the part must be longer than r. The new lower bound is
-   formula (1), r = sqrt((x - pu)^2 + (y - pv)^2 + (z - pf)^2), with formula (2),
-   p = (ux + vy + fz) / (u^2 + v^2 + f^2); the ending point is (pu, pv, pf), the foot of
-   the perpendicular from the starting point to the ray (Fig. 5). The lower bounds of all
-   parts below a part whose length changed are set to zero.
-
-In the first frame every bound is zero. Under the seed's conditions (the true reflections;
-every part seen once perpendicular to the ray through its ending point, "the angle between
-the origin, the endpoint, and the starting point ... a right angle"; a part's such view
-after those of the parts above it), the lengths and the joints become exact (its theorem);
-a part whose perpendicular view comes before its parent's is reset by that parent's later
-change and never recovers (the order dependence of III B).
-
-Reading the seed's text: its conversion to text lost the figures (1-6) and garbled nothing
-in formulas (1) and (2), which read as above (p is the ray parameter of the foot of the
-perpendicular; `SQRT[...]` is the square root). Section III B says "the coordinates of the
-ending point are (pu, pv, pf)", which we take literally. The text does not say which of
-the two quadratic roots is which reflection; we number them 0 = near (smaller depth,
-toward the camera) and 1 = far. "Set to zero" applies to every part below the changed one
-(not only its children), as "below" is defined in III A.
+Camera frame (`Pinhole`): the pinhole at the origin, the focal plane at z = f (px), image
+points (u, v) in px; lengths and joints in m. In each frame, top-down through the `JointTree`,
+a part's ending point lies on the ray through (u, v, f) and on the sphere of the part's lower
+bound r about its starting point: the quadratic formula gives two points, its reflections,
+numbered 0 = near (toward the camera) and 1 = far, and given (the seed's assumption 1). If
+the ray misses the sphere, r rises to formula (1), the starting point's distance from the
+ray; the ending point is the foot of the perpendicular (formula (2)), and the bounds of every
+part below (as III A defines "below", not only the children) restart from zero. Every bound
+starts at zero. Under the seed's conditions the lengths become exact (its theorem).
 """
 
 import equinox as eqx
