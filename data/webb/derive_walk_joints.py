@@ -1,6 +1,6 @@
 """Writes data/webb/walk1_joints.csv: the default joint tree's joint centres in every frame
 of the OpenSim example walk (data/mocap/subject01_walk1.trc, knees and ankles calibrated on
-subject01_static.trc), by `diffbody._joint_centres.joint_centres_from_markers`.
+subject01_static.trc), by `diffbody.images._joint_centres.joint_centres_from_markers`.
 
 Run from the repository root: python data/webb/derive_walk_joints.py
 """
@@ -8,8 +8,9 @@ Run from the repository root: python data/webb/derive_walk_joints.py
 from pathlib import Path
 
 import numpy as np
-from diffbody._joint_centres import NAMES, joint_centres_from_markers
-from diffbody._markers import read_trc
+
+from diffbody.fitting._trc import read_trc
+from diffbody.images._joint_centres import NAMES, joint_centres_from_markers
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import jax
 import numpy as np
-from diffbody._joint_tree import default_joint_tree, write_joint_tree
-from diffbody._motions import walking_motion
-from diffbody._pinhole import camera_around, image_sequence
 
 import diffbody as db
+from diffbody.images._joint_tree import default_joint_tree, write_joint_tree
+from diffbody.images._motions import walking_motion
+from diffbody.images._pinhole import camera_around, image_sequence
 
 OUT = Path(__file__).resolve().parent
 

@@ -60,7 +60,7 @@ def add_mocap_command(sub) -> None:
 
 
 def _axes(text: str):
-    from ..fitting._markers import LAB_AXES
+    from ..fitting._marker_trial import LAB_AXES
 
     if text not in LAB_AXES:
         raise ValueError(f"--axes {text}: unknown lab axes; use one of {', '.join(LAB_AXES)}")
@@ -85,8 +85,9 @@ def _mocap(args) -> int:
     from ..files._saving import save_body
     from ..fitting._markers import read_markers
     from ..fitting._markerset import load_markerset, match_markers
-    from ..fitting._mocap import fit_motion, scale_and_register
+    from ..fitting._motion_fit import fit_motion
     from ..fitting._sphere_fit import FitStatus
+    from ..fitting._static_fit import scale_and_register
 
     check_output("--out", args.out)
     check_output("--png", args.png)

@@ -112,36 +112,26 @@ def _quat(R: np.ndarray) -> np.ndarray:
 
 
 def export_mjcf(body: Body, path: str | os.PathLike) -> Path:
-    """Write the body as a MuJoCo MJCF model (docs/design.md, section 2 as rigid links).
+    """Write the body as a MuJoCo MJCF model (docs/design.md, section 2 as rigid links:
+    `_rigid_links`, whose hinges and caveats apply).
 
     The file, and what it holds:
 
-    - One `<body>` per segment, named after it, nested as the segment tree. Its frame is the
-      segment's *socket* frame placed at the parent's distal joint: pos = (0, 0, L_parent)
-      in the parent's twisted frame, quat = R_parent_socket. The whole body hangs from the
-      world at the origin (quat = its R_parent_socket).
+    - One `<body>` per segment, named after it, nested as the segment tree, at the segment's
+      *socket* frame: pos = (0, 0, L_parent) in the parent's twisted frame, quat =
+      R_parent_socket (the whole body hangs from the world at the origin).
     - Joints, in `mujoco_qpos` order: the whole body's slides `whole_body_x`, `_y`, `_z`
-      along the world axes, then for every segment (whole body included) the hinges
-      `{seg}_theta` (axis z), `{seg}_phi` (axis y), `{seg}_twist` (axis z). MuJoCo composes
-      them as Rz(theta) Ry(phi) Rz(twist) with twist = s(theta, phi) + tau, so each body's
-      `xpos` is the segment's proximal joint and its `xmat` the twisted frame
-      `forward(...).R_world_twisted`. Hinges are unlimited: diffbody's limits live in swing
-      space, not in (theta, phi); check poses with `diffbody.within_limits`.
+      along the world axes, then every segment's hinges `{seg}_theta` (z), `{seg}_phi` (y),
+      `{seg}_twist` (z), unlimited: each body's `xpos` is the segment's proximal joint and
+      its `xmat` `forward(...).R_world_twisted`.
     - Surface spheres as `<geom type="sphere">` named `{seg}_sphere_{k}` (k the index in
-      `body.sphere_*`), in the twisted frame: they turn with the full twist, where diffbody
-      turns them by tau * z / length (partial twist propagation is not representable in a
-      rigid body), so they match `forward`'s sphere centres when tau = 0.
-    - `<site>`s for the features, named as in `body.feature_names` ("left_hand.palm": MuJoCo
-      accepts dots), at origin + radius * direction in the twisted frame (same caveat), and
-      for each segment's distal joint, named after the joint ("left_wrist"), at
-      (0, 0, length): exact in every pose. Joint 0 ("center_of_gravity", the whole body's
-      translating joint) has none: MuJoCo's `subtree_com` gives the center of gravity.
-    - `<inertial>` at the centroid with the segment's mass and the isotropic inertia of a
-      solid sphere of its enclosure radius (`_rigid_links`); massless segments get
-      `TINY_MASS`, so the model's total mass exceeds the body's by that.
-    - `<contact><exclude>` for segment pairs whose spheres overlap in the standard position
-      (neighbouring vertebrae, pelvis and thighs, ...), beyond MuJoCo's own parent-child
-      filter, so a simulation does not start in self-contact.
+      `body.sphere_*`) and `<site>`s for the features (`body.feature_names`), in the twisted
+      frame; a `<site>` at each segment's distal joint, named after it ("left_wrist"), exact
+      in every pose (the center of gravity has none: MuJoCo's `subtree_com` gives it).
+    - `<inertial>` at the centroid with the segment's mass (`TINY_MASS` when massless, so the
+      model's total mass exceeds the body's by that).
+    - `<contact><exclude>` for segment pairs whose spheres overlap in the standard position,
+      beyond MuJoCo's parent-child filter, so a simulation does not start in self-contact.
     - A keyframe "standard_position" = `mujoco_qpos(body, body.rest_pose())`; qpos = 0 is
       every segment along its socket's Z, not a human posture.
 

@@ -1,46 +1,15 @@
-"""A body as rigid links joined by hinges: what the MuJoCo MJCF (`_mjcf`) and URDF (`_urdf`)
-exporters share, a pose's hinge values and the links' geometry.
+"""A body as rigid links joined by hinges (docs/design.md, section 1): what the MuJoCo MJCF
+(`_mjcf`) and URDF (`_urdf`) exporters share, a pose's hinge values (rad) and the links'
+geometry (float64 NumPy: m, kg).
 
-Both formats describe rigid links joined by one-degree-of-freedom joints, so each segment
-becomes three hinges about the axes of seed 000's orientation (docs/design.md, section 1):
-
-    R_socket_twisted = Rz(theta) Ry(phi) Rz(s(theta, phi) + tau)
-
-hinge `{seg}_theta` about the socket's Z, `{seg}_phi` about the turned Y, `{seg}_twist` about
-the segment's own Z, with value s(theta, phi) + tau (s the standard-orientation twist). The
-frame after the three hinges is the segment's *twisted* frame (`forward`'s `R_world_twisted`),
-origin at its proximal joint; a child's socket sits at (0, 0, length) in it, turned by the
-fixed `R_parent_socket`. Joint positions, segment frames and the twisted frames therefore
-match `diffbody.forward` exactly (to rounding; tested against MuJoCo to 1e-9).
-
-What a rigid-body format cannot say:
-
-- **Partial twist.** diffbody turns a surface sphere (and a feature, and the centroid) by
-  tau * clip(z / length, 0, 1) about the segment axis; a rigid link carries everything
-  with its one frame. Spheres, sites and inertials are placed in the twisted frame, so they
-  turn by the full tau: they match `forward` exactly where tau = 0 (the standard
-  orientation, which is where `apply_standard_orientation` puts every pose) and for points
-  at the distal end, and drift by up to tau * (1 - z / length) * (distance from the axis)
-  elsewhere.
-- **Joint limits.** diffbody's limits live in swing space (a box and a cone on the swing
-  vector, a hinge plane, a twist range; see `stop_violation`), which is not a box in
-  (theta, phi, twist). MJCF hinges are left unlimited; URDF (which requires limits on
-  revolute joints) gets theta in [-pi, pi], phi in [0, pi], twist in [-2 pi, 2 pi], which
-  only keep the angles in range. Check poses with `diffbody.within_limits`.
-- **Inertia.** The body holds masses and centroids, not inertia tensors. Each segment gets
-  the isotropic inertia of a uniform solid sphere of its enclosure radius,
-  I = 2/5 m r^2 (half its length when it has no enclosure): it spreads the mass over the
-  space the segment occupies, which overestimates long segments' moments about their own axis
-  and, roughly twofold, their transverse moments (de Leva 1996's radii of gyration are about
-  0.3 of the length). Massless links (the whole body, URDF's intermediate links) get
-  `TINY_MASS` and `TINY_INERTIA` because simulators reject zero mass on moving bodies.
-
-The whole body (segment 0) is placed by the pose's position. In MJCF it has three slide
-joints along the world axes before its three hinges; URDF has no free joint, so the URDF
-fixes it at its standard-position placement (see `export_urdf`). A body re-rooted with
-`Body.with_root` exports the same tree (rooted at the whole body); `mujoco_qpos` places the
-whole body where `forward` puts it. Joint values are read off `forward`'s frames, so a pose
-with a spine target exports its bent spine.
+Each segment becomes three hinges: `{seg}_theta` about the socket's Z, `{seg}_phi` about the
+turned Y, `{seg}_twist` about the segment's own Z with value s(theta, phi) + tau (s the
+standard-orientation twist), so R_socket_twisted = Rz(theta) Ry(phi) Rz(s + tau) and the frame
+after them is `forward`'s twisted frame at the proximal joint: joints and frames match
+`forward` exactly. What a rigid link cannot say: spheres, sites and inertials turn with the
+full twist (exact where tau = 0 and at the distal end); the limits, in swing space, are no box
+in (theta, phi, twist); the inertia is a uniform solid sphere's of the enclosure radius, and
+massless links get `TINY_MASS` and `TINY_INERTIA`.
 """
 
 import os

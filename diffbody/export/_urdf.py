@@ -111,23 +111,18 @@ def export_urdf(
     chain: Sequence[str] | None = None,
     name: str | None = None,
 ) -> Path:
-    """Write the body, or one chain of it, as a URDF robot.
+    """Write the body, or one chain of it, as a URDF robot (rigid links: `_rigid_links`).
 
     URDF joints have one degree of freedom, so segment `{seg}` becomes three links,
-    `{seg}_theta_link`, `{seg}_phi_link` and `{seg}`, joined by revolute joints `{seg}_theta`
-    (axis z), `{seg}_phi` (axis y) and `{seg}_twist` (axis z) with values theta, phi and
-    s(theta, phi) + tau (`urdf_joint_values`). `{seg}_theta`'s origin is the socket
-    placement: xyz = (0, 0, L_parent) and rpy from R_parent_socket, in the parent's link
-    frame; the other two have identity origins. Link `{seg}` is the segment's twisted frame
-    (`forward(...).R_world_twisted`, origin at the proximal joint); it carries the surface
-    spheres (visual and collision, in the twisted frame: they turn with the full twist, see
-    `_rigid_links`) and the inertial of `export_mjcf`. The intermediate links carry
-    `TINY_MASS`. URDF has no sites: feature points are not exported.
-
-    Limits (URDF requires them on revolute joints): theta [-pi, pi], phi [0, pi], twist
-    [-2 pi, 2 pi]. They only keep the angles in range: the true limits are in swing space
-    (`diffbody.within_limits`). Effort and velocity limits are placeholders
-    (`URDF_EFFORT`, `URDF_VELOCITY`).
+    `{seg}_theta_link`, `{seg}_phi_link` and `{seg}`, joined by the revolute joints
+    `{seg}_theta` (z), `{seg}_phi` (y) and `{seg}_twist` (z) (`urdf_joint_values`).
+    `{seg}_theta`'s origin is the socket placement, (0, 0, L_parent) and R_parent_socket in
+    the parent's link frame; the other two have identity origins. Link `{seg}` is the
+    segment's twisted frame and carries the surface spheres (visual and collision) and the
+    inertial of `export_mjcf`; the intermediate links carry `TINY_MASS`. Feature points are
+    not exported (URDF has no sites). Limits keep the angles in range only: theta [-pi, pi],
+    phi [0, pi], twist [-2 pi, 2 pi]; effort and velocity are placeholders (`URDF_EFFORT`,
+    `URDF_VELOCITY`).
 
     Placement. URDF has no free joint. The whole tree (`chain=None`) hangs from a link
     `world`; the whole body is fixed to it by joint `whole_body_fixed` at its
@@ -137,11 +132,10 @@ def export_urdf(
     stances, move the URDF's world frame yourself.
 
     `chain=(first, last)` exports only the path from segment `first` down to segment
-    `last`. `first`'s parent becomes a fixed link `base`: the parent's own link frame
-    (its twisted frame at its proximal joint), so every joint of the chain, the first
-    included, has the same origin as in the whole-tree file, and link frames equal
-    `forward`'s expressed in the parent's twisted frame. A chain that starts at the whole
-    body hangs from `base` as the whole tree hangs from `world`.
+    `last`, hanging from a fixed link `base`: `first`'s parent's link frame (its twisted
+    frame at its proximal joint), so every joint keeps its whole-tree origin and link frames
+    equal `forward`'s in the parent's twisted frame. A chain that starts at the whole body
+    hangs from `base` as the whole tree hangs from `world`.
 
     Args:
         body: the body.

@@ -7,13 +7,13 @@ from ._clouds import (
 from ._clouds import (
     synthetic_cloud as synthetic_cloud,
 )
-from ._markers import (
+from ._marker_trial import (
     LAB_AXES as LAB_AXES,
 )
-from ._markers import (
+from ._marker_trial import (
     MarkerFileError as MarkerFileError,
 )
-from ._markers import (
+from ._marker_trial import (
     MarkerTrial as MarkerTrial,
 )
 from ._markers import (
@@ -21,12 +21,6 @@ from ._markers import (
 )
 from ._markers import (
     read_markers as read_markers,
-)
-from ._markers import (
-    read_trc as read_trc,
-)
-from ._markers import (
-    write_trc as write_trc,
 )
 from ._markerset import (
     MarkerSet as MarkerSet,
@@ -46,17 +40,11 @@ from ._markerset import (
 from ._markerset import (
     world_markers as world_markers,
 )
-from ._mocap import (
+from ._motion_fit import (
     MotionFit as MotionFit,
 )
-from ._mocap import (
-    StaticFit as StaticFit,
-)
-from ._mocap import (
+from ._motion_fit import (
     fit_motion as fit_motion,
-)
-from ._mocap import (
-    scale_and_register as scale_and_register,
 )
 from ._sphere_fit import (
     FitStatus as FitStatus,
@@ -69,4 +57,16 @@ from ._sphere_fit import (
 )
 from ._sphere_fit import (
     fit_spheres_batch as fit_spheres_batch,
+)
+from ._static_fit import (
+    StaticFit as StaticFit,
+)
+from ._static_fit import (
+    scale_and_register as scale_and_register,
+)
+from ._trc import (
+    read_trc as read_trc,
+)
+from ._trc import (
+    write_trc as write_trc,
 )

@@ -26,7 +26,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._body import WHOLE_BODY, Body, Pose, rest_geometry, unknown_name_error
 from .._kinematics import full_chain, place_on_segments, pose_frames, reroot, walk_links, world_base
 from ..files._data_files import Where, data_file, read_json
-from ._markers import MarkerFileError, MarkerTrial
+from ._marker_trial import MarkerFileError, MarkerTrial
 
 SCHEMA = "diffbody.markerset/1"
 KINDS = ("anatomical", "tracking")

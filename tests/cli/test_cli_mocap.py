@@ -10,7 +10,7 @@ import pytest
 import diffbody.cli._main as cli
 from diffbody.cli._mocap import add_mocap_command
 from diffbody.files._data_files import data_file
-from diffbody.fitting._markers import read_trc, write_trc
+from diffbody.fitting._trc import read_trc, write_trc
 
 
 @pytest.fixture

@@ -17,15 +17,8 @@ from hypothesis import given
 import diffbody as db
 from diffbody._body import rest_geometry
 from diffbody.files._data_files import data_file
-from diffbody.fitting._markers import (
-    LAB_AXES,
-    MarkerFileError,
-    MarkerTrial,
-    read_c3d,
-    read_markers,
-    read_trc,
-    write_trc,
-)
+from diffbody.fitting._marker_trial import LAB_AXES, MarkerFileError, MarkerTrial
+from diffbody.fitting._markers import read_c3d, read_markers
 from diffbody.fitting._markerset import (
     MarkerSet,
     MarkerWarning,
@@ -34,6 +27,7 @@ from diffbody.fitting._markerset import (
     scale_offsets,
     world_markers,
 )
+from diffbody.fitting._trc import read_trc, write_trc
 
 STATIC = data_file("mocap/subject01_static.trc")
 WALK = data_file("mocap/subject01_walk1.trc")

@@ -1,5 +1,6 @@
 """Motion capture: scaling and registration on a static trial, the posture of every frame,
-and the bone descriptors over time (diffbody.fitting._mocap, diffbody._descriptors).
+and the bone descriptors over time (diffbody.fitting: _static_fit, _motion_fit;
+diffbody._descriptors).
 
 The synthetic subject is the male median body scaled by known axial factors, with the
 shipped marker set carried to it (`scale_offsets`), posed by known free vectors; its
@@ -19,25 +20,15 @@ import diffbody as db
 from diffbody._descriptors import descriptors, unwrap_directions
 from diffbody._rotations import exp_rotvec
 from diffbody.anthropometry._scale_to import LENGTHS, linear_model_jit
-from diffbody.anthropometry._scaling import SCALE_GROUPS, per_segment
-from diffbody.fitting._marker_points import (
-    _walk_markers,
-    mocap_layout,
-    rigid_fit,
-    rotation_vector,
-    tree_markers,
-)
-from diffbody.fitting._markers import MarkerTrial
+from diffbody.anthropometry._scaling import N_GROUPS, SCALE_GROUPS, per_segment
+from diffbody.fitting._marker_layout import mocap_layout, rigid_fit, rotation_vector
+from diffbody.fitting._marker_points import _walk_markers, tree_markers
+from diffbody.fitting._marker_trial import MarkerTrial
 from diffbody.fitting._markerset import MarkerWarning, load_markerset, scale_offsets, world_markers
-from diffbody.fitting._mocap import (
-    MIN_MARKERS,
-    N_GROUPS,
-    PRIOR_MEASUREMENTS,
-    FitStatus,
-    fit_motion,
-    population_prior,
-    scale_and_register,
-)
+from diffbody.fitting._mocap_solver import MIN_MARKERS
+from diffbody.fitting._motion_fit import fit_motion
+from diffbody.fitting._sphere_fit import FitStatus
+from diffbody.fitting._static_fit import PRIOR_MEASUREMENTS, population_prior, scale_and_register
 from diffbody.ik._problem import make_problem
 
 N_FRAMES = 4

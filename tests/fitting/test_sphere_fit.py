@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 import diffbody as db
 from diffbody.anthropometry._scaling import per_segment
 from diffbody.cli._main import main
-from diffbody.fitting._sphere_fit import softassign, squared_distances
+from diffbody.fitting._sphere_residuals import softassign, squared_distances
 
 
 def scaled_person(body, key, spread=0.05):

@@ -1,0 +1,277 @@
+"""Scaling a body and registering its markers on a static trial (`scale_and_register`;
+docs/design.md, section 7).
+
+Weighted least squares (`_mocap_solver`) over the posture of the marked segments, the log
+axial (with fit "radii" also radial) scale factors of the 13 `SCALE_GROUPS` (left and right
+share one) and each marker's offset. Rows, each a standard score: each marker's error (m) /
+`MARKER_SD`; each offset's move from where the set puts it on the scaled body / its
+tolerance; the ANSUR II prior of one sex on the measurements the factors decide
+(`PRIOR_MEASUREMENTS`), whitened, and each factor's spread `PROPORTION_SD` (without the
+prior, a weak pull on the factors); a weak `PULL` of the posture toward the start. Start:
+the standard position moved rigidly onto the markers riding rigidly on the whole body.
+"""
+
+import dataclasses
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, Float, Int
+
+from .._body import Body, Pose, without_names
+from ..anthropometry._prior import PopulationPrior
+from ..anthropometry._scale_to import LENGTHS, linear_model_jit
+from ..anthropometry._scaling import N_GROUPS, per_segment
+from ..ik._problem import Problem, make_problem
+from ._marker_layout import MocapLayout, mocap_layout, rigid_start
+from ._marker_points import model_markers, tree_markers
+from ._marker_trial import MarkerTrial
+from ._markerset import MarkerSet, match_markers, scale_offsets
+from ._mocap_solver import (
+    MIN_MARKERS,
+    PULL,
+    fit_status,
+    frame_arrays,
+    make_problem_jit,
+    masked_targets,
+    solver,
+)
+from ._sphere_fit import FitStatus
+from ._sphere_residuals import scaled
+
+FIT_CHOICES = ("lengths", "radii", "offsets")
+# The prior's spread of each group's scale factor around the template's proportions: the
+# measurements see sums of lengths (stature), not how the trunk splits between the lumbar
+# and the thoracic spine; segment proportions vary by a few per cent between people.
+PROPORTION_SD = 0.1
+# With the radii: the breadths and depths of ANSUR II that the radial factors decide.
+RADIAL_MEASUREMENTS = ("bideltoidbreadth", "hipbreadth", "chestdepth", "headlength")
+# The length measurements of ANSUR II that the axial scale factors decide (they carry at
+# least 80 % of each: tests/fitting/test_mocap.py). Breadths, depths and the weight depend on the
+# radii and masses.
+PRIOR_MEASUREMENTS = (
+    "stature",
+    "span",
+    "acromialheight",
+    "cervicaleheight",
+    "sittingheight",
+    "trochanterionheight",
+    "kneeheightmidpatella",
+    "lateralfemoralepicondyleheight",
+    "tibialheight",
+    "biacromialbreadth",
+    "acromionradialelength",
+    "radialestylionlength",
+    "handlength",
+    "footlength",
+)
+STATIC_STEPS = 100
+
+
+class StaticFit(eqx.Module):
+    """What `scale_and_register` returns."""
+
+    body: Body  # the template scaled by the fitted factors
+    pose: Pose  # the static posture (the spine as a Bendspine target)
+    markerset: MarkerSet  # the registered offsets, for `body`
+    axial: Float[Array, " n_group"]  # axial scale factors, `SCALE_GROUPS` order
+    radial: Float[Array, " n_group"]  # radial scale factors (1 unless "radii" were fitted)
+    errors: Float[Array, " n"]  # m, each marker's distance from its measured mean position
+    status: Int[Array, ""]  # a FitStatus
+    steps: Int[Array, ""]  # solver steps
+
+    @property
+    def converged(self) -> bool:
+        return bool(self.status == FitStatus.CONVERGED)
+
+
+class _Prior(eqx.Module):
+    """The population prior's marginal of the measurements the fit changes, on the template
+    scaled by axial and radial group factors s (2 n_group,): the measurements are A s,
+    exactly within a piece (they are piecewise linear in the scale factors,
+    `anthropometry._scale_to`), with their mean log values and whitening (the inverse Cholesky
+    factor of their covariance)."""
+
+    A: Float[Array, "k two_n_group"]  # m per unit factor: axial columns, then radial
+    mean: Float[Array, " k"]
+    whiten: Float[Array, "k k"]
+
+    def rows(self, log_axial: Array, log_radial: Array) -> Array:
+        """The whitened deviations of the log measurements, and each factor's deviation
+        from the template's proportions (`PROPORTION_SD`): standard scores."""
+        log_s = jnp.concatenate([log_axial, log_radial])
+        log_m = jnp.log(self.A @ jnp.exp(log_s))
+        return jnp.concatenate([self.whiten @ (log_m - self.mean), log_s / PROPORTION_SD])
+
+
+def population_prior(prior, template: Body, sex: str | None, fit=FIT_CHOICES) -> _Prior | None:
+    """The prior of the static fit (None: none) on `PRIOR_MEASUREMENTS`, and
+    `RADIAL_MEASUREMENTS` when the radii are fitted. `prior`: True (every ANSUR II
+    subject of `sex`; by default the sex the template's name starts with, male otherwise),
+    False, or a `PopulationPrior`."""
+    if prior is False or prior is None:
+        return None
+    if prior is True:
+        if sex is None:
+            sex = "female" if template.name.startswith("female") else "male"
+        prior = PopulationPrior.ansur2(sex)
+    if not isinstance(prior, PopulationPrior):
+        raise TypeError(
+            f"scale_and_register: prior must be True, False or a PopulationPrior, got {prior!r}"
+        )
+    names = PRIOR_MEASUREMENTS + (RADIAL_MEASUREMENTS if "radii" in fit else ())
+    k = prior.index(names)
+    whiten = np.linalg.inv(np.linalg.cholesky(prior.cov[np.ix_(k, k)]))
+    dtype = template.lengths.dtype
+    A = np.asarray(linear_model_jit(without_names(template), jnp.ones(2 * N_GROUPS, dtype)))
+    arrays = (A[[LENGTHS.index(n) for n in names]], prior.mean[k], whiten)
+    return _Prior(*(jnp.asarray(a, dtype) for a in arrays))
+
+
+class _Static(eqx.Module):
+    """The fixed part of the static fit."""
+
+    problem: Problem  # the posture's problem on the template, from the aligned start
+    markerset: MarkerSet  # the set's offsets on the template
+    target: Float[Array, "n 3"]  # m, measured mean positions (0 where missing)
+    sqrt_w: Float[Array, " n"]  # sqrt(weight) / MARKER_SD, 0 where missing
+    prior: _Prior | None
+
+
+def _static_state(static: _Static, lay: MocapLayout, z: Array):
+    """The segment lengths (n_seg,) and marker offsets (n, 3) on the scaled body, the
+    posture's free vector, the log scales and the offsets' moves, for the unknowns z."""
+    x, log_axial, log_radial, moves = lay.split(z)
+    template = static.problem.body
+    axial = per_segment(template, jnp.exp(log_axial))
+    radial = per_segment(template, jnp.exp(log_radial))
+    offsets = scale_offsets(static.markerset, template, axial, radial).offsets
+    return template.lengths * axial, offsets + moves, x, (log_axial, log_radial), moves
+
+
+def _static_residuals(z: Array, args) -> Array:
+    """The static fit's rows (module docstring), standard scores."""
+    static, lay = args
+    lengths, offsets, x, log_scales, moves = _static_state(static, lay, z)
+    p = tree_markers(lay, static.problem, lengths, offsets, x)
+    rows = [
+        (static.sqrt_w[:, None] * (p - static.target)).ravel(),
+        (moves / static.markerset.tolerances[:, None]).ravel()[: lay.sizes[3]],
+        PULL * (x - static.problem.x0),
+    ]
+    if static.prior is not None:
+        rows.append(static.prior.rows(*log_scales))
+    else:
+        rows.append(PULL * jnp.concatenate(log_scales))
+    return jnp.concatenate(rows)
+
+
+def _fit_static(template: Body, lay: MocapLayout, rest: Pose, static: _Static):
+    """The static solve: the start moved rigidly onto the pelvis markers, then every unknown
+    at once. Returns the pose, log axial scales, offsets, per-marker errors, status, steps."""
+    present = static.sqrt_w > 0
+    x0 = static.problem.x0
+    p0 = model_markers(static.problem, lay, static.markerset.offsets, x0)
+    root = rigid_start(lay, p0, static.target, present, static.problem.position0)
+    init = static.problem.pose(x0.at[-6:].set(root), rest)
+    static = dataclasses.replace(static, problem=make_problem(template, lay.pose, init))
+    z0 = jnp.zeros(sum(lay.sizes), x0.dtype).at[: lay.sizes[0]].set(static.problem.x0)
+    sol = optx.least_squares(
+        _static_residuals, solver(z0.dtype), z0, (static, lay), max_steps=STATIC_STEPS, throw=False
+    )
+    finite = jnp.all(jnp.isfinite(sol.value))
+    z = jnp.where(finite, sol.value, z0)
+    lengths, offsets, x, (log_axial, log_radial), _ = _static_state(static, lay, z)
+    p = tree_markers(lay, static.problem, lengths, offsets, x)
+    errors = jnp.where(present, jnp.linalg.norm(p - static.target, axis=-1), jnp.nan)
+    status = fit_status(finite, sol.result == optx.RESULTS.successful)
+    pose = static.problem.pose(x, init)
+    return pose, log_axial, log_radial, offsets, errors, status, sol.stats["num_steps"]
+
+
+_fit_static_jit = eqx.filter_jit(_fit_static)
+
+
+def _fit_names(fit) -> tuple[str, ...]:
+    fit = (fit,) if isinstance(fit, str) else tuple(fit)
+    unknown = [f for f in fit if f not in FIT_CHOICES]
+    if unknown:
+        raise ValueError(
+            f"scale_and_register: fit {unknown} is not a choice; give a subset of {FIT_CHOICES} "
+            "(the posture always moves)"
+        )
+    return tuple(f for f in FIT_CHOICES if f in fit)
+
+
+def scale_and_register(
+    body: Body,
+    static: MarkerTrial,
+    markerset: MarkerSet,
+    *,
+    prior=True,
+    fit=("lengths", "offsets"),
+    sex: str | None = None,
+) -> StaticFit:
+    """Scale a body and register its markers on a static trial (module docstring).
+
+    Args:
+        body: the template (its markers' offsets are `markerset`'s, resolved for it).
+        static: the static trial; its frames are averaged (`MarkerTrial.mean_frame`).
+            Markers it lacks, or that the set does not map, are left out with a warning.
+        markerset: the marker set resolved for `body` (`load_markerset`).
+        prior: True: the ANSUR II population prior of `sex` on the body's length
+            measurements (module docstring); a `PopulationPrior`; False: none.
+        fit: what moves besides the posture, a subset of ("lengths", "radii", "offsets"):
+            the log axial and radial scale factors of `SCALE_GROUPS`, each marker's offset.
+            On the shipped trials the radii bring the static errors down (the sternum's
+            from 56 to 36 mm: the subject's chest is shallower than the template's) but not
+            the walk's.
+        sex: "male" or "female" for `prior=True` (default: "female" when the body's name
+            starts with it, else "male").
+
+    Returns:
+        A `StaticFit`: the scaled body, the static pose, the registered marker set (offsets
+        for the scaled body; only the markers the trial has), the scale factors, each
+        marker's distance (m) from its measured position, a FitStatus.
+
+    Raises:
+        ValueError: an unknown choice in `fit`; no marker shared with the set; fewer than
+            `MIN_MARKERS` markers present in the static trial.
+    """
+    fit = _fit_names(fit)
+    markerset, static = match_markers(markerset, static.mean_frame())
+    template = without_names(body)
+    lay = mocap_layout(template, markerset, fit)
+    dtype = template.lengths.dtype
+    target, sqrt_w = frame_arrays(static, np.asarray(markerset.weights, float), dtype)
+    if int(np.sum(np.asarray(sqrt_w) > 0)) < MIN_MARKERS:
+        raise ValueError(
+            f"scale_and_register: the static trial {static.source!r} has fewer than "
+            f"{MIN_MARKERS} markers of the set {markerset.name!r} present; the body cannot "
+            "be placed"
+        )
+    rest = template.rest_pose()
+    state = _Static(
+        problem=make_problem_jit(template, lay.pose, rest),
+        markerset=markerset,
+        target=masked_targets(target[0])[0],
+        sqrt_w=sqrt_w[0],
+        prior=population_prior(prior, body, sex, fit),
+    )
+    out = _fit_static_jit(template, lay, rest, state)
+    pose, log_axial, log_radial, offsets, errors, status, steps = out
+    scaled_body = scaled(body, log_axial, log_radial)
+    scaled_body = dataclasses.replace(
+        scaled_body, name=f"{body.name}-scaled", source="diffbody.scale_and_register"
+    )
+    return StaticFit(
+        body=scaled_body,
+        pose=pose,
+        markerset=eqx.tree_at(lambda m: m.offsets, markerset, offsets),
+        axial=jnp.exp(log_axial),
+        radial=jnp.exp(log_radial),
+        errors=errors,
+        status=status,
+        steps=steps,
+    )
