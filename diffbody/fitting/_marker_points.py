@@ -1,4 +1,4 @@
-"""The marker kernel, formerly `_marker_kernel`: markers' world positions on the walked body
+"""The marker point kernel: motion-capture markers' world positions on the walked body
 (`tree_markers`, (n, 3) m for the posture's free vector, one walk of the layout's chain) and
 their closed-form Jacobian (docs/design.md, sections 6 and 7).
 
