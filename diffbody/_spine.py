@@ -1,6 +1,6 @@
 """The spine of Monheit & Badler (1991, seed 004): Bendspine, Movespine, and the body's
-vertebrae set from spine angles. The database they read is `Spine` (`_body`), loaded by
-`load_spine` (`_spine_file`).
+vertebrae set from spine angles, on a `Spine` database (`_body`). Arguments are checked by
+`_spine_checks`.
 
 Angles are (flexion, axial, lateral) per joint, in radians, right-handed about the body's
 Y (left), Z (up) and X (forward) axes (docs/design.md, section 5):
@@ -23,6 +23,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._body import Body, Pose, Spine
 from ._limits import angles_from_swing, swing_vector
+from ._spine_checks import checked_args
 
 
 class BendResult(eqx.Module):
@@ -202,197 +203,12 @@ def _move_kernel(
     return results
 
 
-# --- argument checks --------------------------------------------------------------------------
-
-
-def _is_traced(x) -> bool:
-    return isinstance(x, jax.core.Tracer)
-
-
-def _fmt(v: np.ndarray) -> str:
-    return repr(tuple(e.item() for e in v)) if v.ndim else repr(v.item())
-
-
-def _show(x: np.ndarray, bad: np.ndarray) -> str:
-    """The first offending value of x (bad: over x's leading axes), with its index."""
-    if bad.ndim == 0:
-        return _fmt(x)
-    k = tuple(int(i) for i in np.argwhere(bad)[0])
-    where = f"step {k[0]}" if len(k) == 1 else f"index {list(k)}"
-    return f"{_fmt(np.asarray(x[k]))} at {where}"
-
-
-class _Checker:
-    """Argument checks of `fn`: a bad shape or dtype raises ValueError at once (also under
-    jit); values are checked on the host when concrete, and otherwise, inside jit, vmap or
-    scan, by `eqx.error_if` threaded onto `current` (see `guard`)."""
-
-    def __init__(self, fn: str):
-        self.fn = fn
-        self.traced: list[tuple[Array, str]] = []
-
-    def error(self, name: str, rule: str, got: str) -> ValueError:
-        return ValueError(f"{self.fn}: {name} must {rule}, got {got}")
-
-    def array(self, name, rule, x, kind, shapes):
-        """x as an array: a jax array when traced, else a numpy one; `kind` "int" or "real"
-        (int or float; bool never), of one of `shapes`."""
-        items = x if isinstance(x, (tuple, list)) else (x,)
-        if any(isinstance(e, (bool, np.bool_)) for e in items):
-            raise self.error(name, rule, repr(x))
-        if isinstance(x, (tuple, list)) and any(isinstance(e, jax.Array) for e in x):
-            a = jnp.asarray(x)
-        elif isinstance(x, jax.Array):
-            a = x
-        else:
-            try:
-                a = np.asarray(x)
-            except (TypeError, ValueError, OverflowError):
-                raise self.error(name, rule, repr(x)) from None
-        ok = jnp.issubdtype(a.dtype, jnp.integer) or (
-            kind == "real" and jnp.issubdtype(a.dtype, jnp.floating)
-        )
-        if not ok:
-            small = not _is_traced(a) and np.size(a) <= 4
-            raise self.error(name, rule, repr(x) if small else f"dtype {a.dtype}")
-        if a.shape not in shapes:
-            raise self.error(name, rule, f"shape {a.shape}")
-        return a
-
-    def values(self, name, rule, a, ok):
-        """Require ok(xp, a) everywhere (xp: numpy on the host, jax.numpy when traced)."""
-        if _is_traced(a):
-            self.traced.append((~jnp.all(ok(jnp, a)), f"{self.fn}: {name} must {rule}"))
-            return
-        host = np.asarray(a)
-        bad = np.asarray(~np.asarray(ok(np, host)))
-        if np.any(bad):
-            raise self.error(name, rule, _show(host, bad))
-
-    def guard(self, x: Array) -> Array:
-        """x carrying the traced checks: every output depends on it, so none is dead code."""
-        for pred, msg in self.traced:
-            x = eqx.error_if(x, pred, msg)
-        return x
-
-
-def _checked_args(
-    fn,
-    spine,
-    current,
-    target,
-    initiator,
-    resistor,
-    resistance,
-    joint_range,
-    zero_interpolation,
-    spread,
-    tol,
-    steps,
-):
-    """Check Bendspine's arguments (`steps`: None for one call, else the number of steps of
-    Movespine, whose per-step arguments may also have one value per step) and return them as
-    the kernels' arrays: lower, upper, rest, current, target, initiator, resistor, resistance,
-    joint_range, spread, tol, zero_interpolation."""
-    n = spine.n_joints
-    chk = _Checker(fn)
-    per = "" if steps is None else f" (one value, or one per step: shape ({steps},))"
-    per_pair = "" if steps is None else f" (one pair, or one per step: shape ({steps}, 2))"
-    one = [()] if steps is None else [(), (steps,)]
-
-    current = chk.array("current", f"be finite angles of shape ({n}, 3)", current, "real", [(n, 3)])
-    if steps is None:
-        target = chk.array("target", "have shape (3,)", target, "real", [(3,)])
-    else:
-        target = chk.array("targets", "have shape (n_step, 3)", target, "real", [(steps, 3)])
-    dtypes = [
-        a.dtype for a in (current, target, spine.lower) if jnp.issubdtype(a.dtype, jnp.floating)
-    ]
-    dtype = jax.dtypes.canonicalize_dtype(np.result_type(*dtypes))
-    chk.values(
-        "current", f"be finite angles of shape ({n}, 3)", current, lambda xp, a: xp.isfinite(a)
-    )
-
-    index_rule = f"be an integer joint index in [0, {n - 1}]{per}"
-    initiator = chk.array("initiator", index_rule, initiator, "int", one)
-    chk.values("initiator", index_rule, initiator, lambda xp, a: (a >= 0) & (a <= n - 1))
-    resistance_rule = f"lie in [0, 1]{per}"
-    resistance = chk.array("resistance", resistance_rule, resistance, "real", one)
-    chk.values("resistance", resistance_rule, resistance, lambda xp, a: (a >= 0) & (a <= 1))
-    if resistor is None:
-        resistor, resistance = initiator, np.zeros(())
-    else:
-        resistor = chk.array("resistor", index_rule, resistor, "int", one)
-        chk.values("resistor", index_rule, resistor, lambda xp, a: (a >= 0) & (a <= n - 1))
-
-    range_rule = f"be two integers 0 <= from <= to <= {n - 1}{per_pair}"
-    if joint_range is None:
-        joint_range = np.asarray((0, n - 1))
-    shapes = [(2,)] if steps is None else [(2,), (steps, 2)]
-    joint_range = chk.array("joint_range", range_rule, joint_range, "int", shapes)
-    chk.values(
-        "joint_range",
-        range_rule,
-        joint_range,
-        lambda xp, a: (a[..., 0] >= 0) & (a[..., 0] <= a[..., 1]) & (a[..., 1] <= n - 1),
-    )
-    if _is_traced(initiator) or _is_traced(joint_range):
-        inside = (initiator >= joint_range[..., 0]) & (initiator <= joint_range[..., 1])
-        chk.traced.append((~jnp.all(inside), f"{fn}: initiator must lie in joint_range"))
-    else:
-        i_h, r_h = np.asarray(initiator), np.asarray(joint_range)
-        lead = np.broadcast_shapes(i_h.shape, r_h.shape[:-1])  # () or (steps,)
-        i_h, r_h = np.broadcast_to(i_h, lead), np.broadcast_to(r_h, lead + (2,))
-        bad = (i_h < r_h[..., 0]) | (i_h > r_h[..., 1])
-        if np.any(bad):
-            k = tuple(np.argwhere(bad)[0])
-            at = f" at step {k[0]}" if k else ""
-            raise chk.error("initiator", f"lie in joint_range {r_h[k].tolist()}", f"{i_h[k]}{at}")
-
-    spread = chk.array("spread", "be finite and > 0", spread, "real", [()])
-    chk.values("spread", "be finite and > 0", spread, lambda xp, a: xp.isfinite(a) & (a > 0))
-    if tol is None:
-        tol = 100 * n * float(jnp.finfo(dtype).eps)
-    tol = chk.array("tol", "be finite and > 0 (or None)", tol, "real", [()])
-    chk.values("tol", "be finite and > 0 (or None)", tol, lambda xp, a: xp.isfinite(a) & (a > 0))
-
-    z = zero_interpolation
-    if isinstance(z, (bool, np.bool_)):
-        z = np.asarray(z)
-    elif not (isinstance(z, (jax.Array, np.ndarray)) and z.dtype == bool and z.shape == ()):
-        raise chk.error("zero_interpolation", "be a bool", repr(zero_interpolation))
-
-    current = chk.guard(jnp.asarray(current, dtype))
-    if steps is not None:
-        lead = (steps,)
-        initiator = jnp.broadcast_to(jnp.asarray(initiator), lead)
-        resistor = jnp.broadcast_to(jnp.asarray(resistor), lead)
-        resistance = jnp.broadcast_to(jnp.asarray(resistance), lead)
-        joint_range = jnp.broadcast_to(jnp.asarray(joint_range), lead + (2,))
-    # Fixed dtypes: Python, numpy and jax scalars all reach the kernel as the same arrays, so
-    # that it compiles once.
-    initiator, resistor, joint_range = (
-        jnp.asarray(a, jnp.int32) for a in (initiator, resistor, joint_range)
-    )
-    return (
-        jnp.asarray(spine.lower, dtype),
-        jnp.asarray(spine.upper, dtype),
-        jnp.asarray(spine.rest, dtype),
-        current,
-        jnp.asarray(target, dtype),
-        initiator,
-        resistor,
-        jnp.asarray(resistance, dtype),
-        joint_range,
-        jnp.asarray(spread, dtype),
-        jnp.asarray(tol, dtype),
-        jnp.asarray(z, bool),
-    )
+# --- the public calls -------------------------------------------------------------------------
 
 
 def bendspine(
     spine: Spine,
-    # Loose annotations: shapes, dtypes and ranges are checked, and reported, by `_checked_args`.
+    # Loose annotations: shapes, dtypes and ranges are checked, and reported, by `checked_args`.
     current: ArrayLike,
     target: ArrayLike,
     *,
@@ -404,27 +220,16 @@ def bendspine(
     spread: ArrayLike = 3.0,
     tol: ArrayLike | None = None,
 ) -> BendResult:
-    """Bendspine (seed 004): new joint angles whose sum is `target`.
+    """Bendspine (seed 004; docs/design.md, section 5): new joint angles whose sum is `target`.
 
-    Each rotation is computed independently. Moving away from the rest posture ("bending")
-    interpolates toward the joint limits, moving back toward it ("unbending") toward the rest
-    angles, with global participation P = (target - current) / (limits or rest - current)
-    and joint weights w_i = p_i r_i (limit_i - j_i) (or (rest_i - j_i)); the new angles are
-    j_i + M w_i / sum(w). Our choices for the seed's p_i and r_i, which it gives in words:
-
-    - p_i = P + (1 - P) f_i, with f_i = exp(-(d_i / spread)^2) (d_i the distance in joints to
-      the initiator) capped so that f_i (limit_i - j_i) never exceeds the initiator's room:
-      at full participation every weight is 1 (the spine interpolates exactly to its fully
-      bent position), and on a fresh bend the initiator moves most, its neighbours less,
-      joints far away hardly at all.
-    - r_i: see `_resistance_profile`: 1 on the active side, falling linearly to
-      1 - resistance at the resistor, 1 - resistance beyond it.
-
-    A joint computed past its limit is set to the limit and the remainder is redistributed,
-    so the angles sum exactly to a target within the sum of the limits; beyond that every
-    participating joint stops at its limit and `reached` is False. Unbending, the joints on
-    the far side of their rest angle (whose weights would have the other sign) return by the
-    share P of their way; the others make up the target by the formula.
+    Each rotation is computed independently. Bending (away from the rest posture) moves the
+    active joints toward their limits, unbending toward their rest angles, each joint by its
+    weight w_i = p_i r_i (bound_i - j_i): participation p_i is 1 everywhere when the whole
+    movement is asked for and, on a small bend, largest at the initiator and falling off
+    over `spread` joints; r_i falls to 1 - resistance at the resistor (`_resistance_profile`).
+    A joint computed past its limit stops there and the rest goes to the others, so a target
+    within the limits is met exactly; beyond them every active joint stops at its limit and
+    `reached` is False.
 
     Arguments out of range raise ValueError; when traced (under jit, vmap, scan) their values
     are checked by `equinox.error_if`, which raises at run time.
@@ -455,7 +260,7 @@ def bendspine(
     Returns:
         `BendResult`.
     """
-    args = _checked_args(
+    args = checked_args(
         "bendspine",
         spine,
         current,
@@ -520,7 +325,7 @@ def movespine(
     steps = np.shape(targets)[0] if np.ndim(targets) == 2 else None
     if steps is None:
         raise ValueError(f"movespine: targets must have shape (n_step, 3), got {np.shape(targets)}")
-    args = _checked_args(
+    args = checked_args(
         "movespine",
         spine,
         current,

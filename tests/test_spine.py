@@ -8,6 +8,7 @@ from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 import diffbody as db
+from diffbody.files._data_files import data_file
 
 DEG = np.pi / 180
 # The seed's six figure targets (flexion, axial, lateral) in degrees, mapped one to one onto
@@ -300,7 +301,7 @@ def test_the_database_agrees_with_the_body(male50, spine):
 def test_bad_spine_file_is_named(tmp_path):
     import json
 
-    doc = json.loads(db._data_files.data_file("spine.json").read_text())
+    doc = json.loads(data_file("spine.json").read_text())
     doc["joints"][3]["rest_deg"][0] = 90.0
     path = tmp_path / "spine.json"
     path.write_text(json.dumps(doc))
@@ -378,7 +379,7 @@ def test_spine_target_needs_a_spine(tmp_path):
     with pytest.raises(ValueError, match="no spine database"):
         db.forward(body, db.Pose(pose.position, pose.angles, spine_target=jnp.zeros(3)))
     doc = mini_doc()
-    doc["spine"] = str(db._data_files.data_file("spine.json"))
+    doc["spine"] = str(data_file("spine.json"))
     with pytest.raises(db.BodyFileError, match="'spine'.*moves segment 'neck'"):
         db.load_body(write(doc, tmp_path / "mini_spine.json"))
 

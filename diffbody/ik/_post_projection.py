@@ -50,9 +50,9 @@ def needs_projection(body: Body, layout: Layout) -> bool:
 
 
 def project_to_standard(body: Body, pose: Pose, keep: tuple[int, ...]) -> Pose:
-    """The pose with every twist outside `keep` reset to the standard orientation, joint
-    positions unchanged (the posture from joints); if the reset would break a limit, the
-    pose is returned as it is."""
+    """The pose with every twist outside `keep` (segments, `twists_to_keep`) reset to the
+    standard orientation, joint positions unchanged (the posture from joints); if the reset
+    would break a limit, the pose is returned as it is."""
     mask = np.zeros(body.n_segments, bool)
     mask[list(keep)] = True
     fk = forward(body, pose)
@@ -66,3 +66,9 @@ def project_to_standard(body: Body, pose: Pose, keep: tuple[int, ...]) -> Pose:
     )
     ok = jnp.all(within_limits(body, projected, tol=PROJECTION_TOL))
     return jax.tree.map(lambda a, c: jnp.where(ok, a, c), projected, pose)
+
+
+def finish(body: Body, pose: Pose, keep: tuple[int, ...] | None) -> Pose:
+    """The pose after the post-projection: `project_to_standard` keeping the twists of `keep`,
+    or the pose as it is when `keep` is None (no projection asked for, or none needed)."""
+    return pose if keep is None else project_to_standard(body, pose, keep)

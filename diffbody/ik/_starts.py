@@ -44,8 +44,9 @@ MAX_STARTS = 64  # starts beyond this many repeat the table (each is tried at mo
 
 
 def nth_start(x0: Float[Array, " n"], k: Int[Array, ""], n_trunk: int) -> Float[Array, " n"]:
-    """The free vector of start k (traced): x0 for k = 0, else the k-th Halton point with
-    the trunk (the last `n_trunk` entries: spine target, root placement) kept at x0."""
+    """The free vector of start k (traced): x0 for k = 0, else the k-th Halton point (k
+    modulo `MAX_STARTS`) with the trunk (the last `n_trunk` entries: spine target, root
+    placement) kept at x0."""
     n = x0.shape[0]
     if n == 0:
         return x0
