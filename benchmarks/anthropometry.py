@@ -68,7 +68,7 @@ def population(db, known: tuple[str, ...]) -> tuple[float, float, float]:
     cols = [db.MEASUREMENT_NAMES.index(k) for k in known]
     data = {sex: ansur2_subjects(sex)[1][:, cols] for sex in SEXES}
     for sex in SEXES:  # the priors of every row, fitted outside the timing
-        db._anthropometry._default_prior(sex)
+        db.PopulationPrior.ansur2(sex)
 
     def everyone():
         t0 = time.perf_counter()

@@ -15,6 +15,7 @@ package, so that each is seen to fail.
 """
 
 import ast
+import json
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "diffbody"
@@ -171,3 +172,46 @@ def test_each_rule_finds_what_it_forbids(tmp_path):
     assert private_crossings(modules) == ["pkg.cli._main imports _step from pkg._core"]
     assert upward_imports(modules) == ["pkg._core (core) imports pkg.cli._main (cli)"]
     assert long_modules(modules) == {"pkg._core": MAX_LINES + 3}
+
+
+def names_taken_from(sources: dict[str, str], package) -> list[str]:
+    """`db.NAME` in each source (tests, benchmarks, notebooks) that `package` lacks."""
+    missing = []
+    for where, text in sources.items():
+        for node in ast.walk(ast.parse(text)):
+            if (
+                isinstance(node, ast.Attribute)
+                and isinstance(node.value, ast.Name)
+                and node.value.id == "db"
+                and not hasattr(package, node.attr)
+            ):
+                missing.append(f"{where}:{node.lineno} db.{node.attr}")
+    return missing
+
+
+def _user_sources() -> dict[str, str]:
+    root = PACKAGE.parent
+    out = {
+        str(p.relative_to(root)): p.read_text()
+        for folder in ("tests", "benchmarks", "data")
+        for p in sorted((root / folder).rglob("*.py"))
+    }
+    for path in sorted((root / "notebooks").glob("*.ipynb")):
+        cells = json.loads(path.read_text())["cells"]
+        code = ["".join(c["source"]) for c in cells if c["cell_type"] == "code"]
+        # IPython magics and shell lines are not Python.
+        lines = [
+            ln for ln in "\n".join(code).splitlines() if not ln.lstrip().startswith(("%", "!"))
+        ]
+        out[str(path.relative_to(root))] = "\n".join(lines)
+    return out
+
+
+def test_tests_benchmarks_and_notebooks_use_names_diffbody_has():
+    """A name moved or made private in the package is caught here, not after a long run
+    (`db._anthropometry` outlived the move into sub-packages)."""
+    import diffbody
+
+    assert not names_taken_from(_user_sources(), diffbody)
+    broken = {"t.py": "import diffbody as db\ndb.forward\ndb._anthropometry._default_prior\n"}
+    assert names_taken_from(broken, diffbody) == ["t.py:3 db._anthropometry"]

@@ -127,7 +127,7 @@ def test_scaling_reproduces_the_given_measurements(sex, given):
     # The others follow the population: within 6 standard deviations of the conditional
     # mean, and the body still stands on the ground.
     rest = {n: v for n, v in db.measurements(body).items() if n not in given}
-    prior = db._anthropometry._default_prior(sex)
+    prior = db.PopulationPrior.ansur2(sex)
     assert not prior.outliers({**given, **rest})
     assert float(jnp.min(db.forward(body, body.rest_pose()).sphere_centers[:, 2])) > 0
 
@@ -136,7 +136,7 @@ def test_no_ansur_subject_is_rejected(subjects):
     """The 6-standard-deviation check never refuses a real person, from stature and weight or
     from the five inputs."""
     for sex, values in subjects.items():
-        prior = db._anthropometry._default_prior(sex)
+        prior = db.PopulationPrior.ansur2(sex)
         for known in (FIVE[:2], FIVE):
             cols = [db.MEASUREMENT_NAMES.index(k) for k in known]
             z = prior.z_scores(known, values[:, cols])
