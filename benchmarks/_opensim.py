@@ -1,5 +1,5 @@
 """OpenSim as the motion-capture peer: its Scale and InverseKinematics tools run on the
-Gait2354 example files (../shared/reference/mocap/opensim-gait2354), timed, their marker
+Gait2354 example files (data/mocap, see its README), timed, their marker
 errors parsed.
 
 `opensim` (pip install opensim, 4.6) is a benchmark-only dependency: every function that
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
-OPENSIM_DIR = REPO.parent / "shared" / "reference" / "mocap" / "opensim-gait2354"
+OPENSIM_DIR = REPO / "data" / "mocap"  # OpenSim's example files, copied with their source
 SCALE_SETUP = "subject01_Setup_Scale.xml"
 IK_SETUP = "subject01_Setup_IK.xml"
 IK_REFERENCE = "subject01_walk1_ik_opensim.mot"  # OpenSim's shipped IK answer

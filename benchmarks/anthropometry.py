@@ -1,7 +1,7 @@
-"""Anthropometry: held-out scaling accuracy on ANSUR II, whole populations, sphere-cloud fits;
-every figure beside its goal, with the machine and versions.
+"""Anthropometry: held-out scaling accuracy on ANSUR II and whole populations; every figure
+beside its goal, with the machine and versions.
 
-    python benchmarks/anthropometry.py [--skip-clouds] [--x64]
+    python benchmarks/anthropometry.py [--x64] [--quick] [--out DIR]
 
 1. **Held-out accuracy.** Per sex, the population prior is fitted on the even rows of the
    ANSUR II file (0-based: rows 0, 2, 4, ...). Each odd row is scaled (`scale_population`,
@@ -17,7 +17,9 @@ every figure beside its goal, with the machine and versions.
    scaled from stature and weight, and from the five inputs: the compile time (the first
    call on a few rows) and the run time of the whole population (the second call) < 10 s
    each, every given measurement reproduced within 1 mm.
-3. **Sphere clouds** (`--skip-clouds`): benchmarks/_sphere_cloud.py.
+
+Sphere-cloud fits have their own benchmark: benchmarks/_sphere_cloud.py. `--quick` scales
+every 20th held-out row of one sex and the population from stature and weight only.
 """
 
 import argparse
@@ -28,20 +30,21 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import goal, machine, print_goals, select_device, versions  # noqa: E402
+import results  # noqa: E402
+from common import goal, machine, print_goals, select_device, start_run, versions  # noqa: E402
 
 FIVE = ("stature", "weightkg", "span", "sittingheight", "hipbreadth")
 SEXES = ("male", "female")
 
 
-def held_out(db, sex: str, known: tuple[str, ...]) -> dict[str, float]:
+def held_out(db, sex: str, known: tuple[str, ...], every: int = 1) -> dict[str, float]:
     """Mean absolute errors (mm) over the other lengths of the odd rows: diffbody, uniform
     scaling by stature, the linear predictor."""
     from diffbody.anthropometry._prior import ansur2_subjects
 
     rows, values = ansur2_subjects(sex)
     names = db.MEASUREMENT_NAMES
-    train, test = values[rows % 2 == 0], values[rows % 2 == 1]
+    train, test = values[rows % 2 == 0], values[rows % 2 == 1][::every]
     prior = db.PopulationPrior.fit(train, sex=sex)
     cols = [names.index(k) for k in known]
     others = [i for i, n in enumerate(names) if n not in known and n != "weightkg"]
@@ -60,19 +63,19 @@ def held_out(db, sex: str, known: tuple[str, ...]) -> dict[str, float]:
     }
 
 
-def population(db, known: tuple[str, ...]) -> tuple[float, float, float]:
+def population(db, known: tuple[str, ...], sexes=SEXES) -> tuple[float, float, float]:
     """(compile s, run s, fraction reproduced) over every subject of both sexes: the run is
     the second call, the compile time the first call minus the second."""
     from diffbody.anthropometry._prior import ansur2_subjects
 
     cols = [db.MEASUREMENT_NAMES.index(k) for k in known]
-    data = {sex: ansur2_subjects(sex)[1][:, cols] for sex in SEXES}
-    for sex in SEXES:  # the priors of every row, fitted outside the timing
+    data = {sex: ansur2_subjects(sex)[1][:, cols] for sex in sexes}
+    for sex in sexes:  # the priors of every row, fitted outside the timing
         db.PopulationPrior.ansur2(sex)
 
     def everyone():
         t0 = time.perf_counter()
-        outs = [db.scale_population(known, data[sex], sex=sex, progress=False) for sex in SEXES]
+        outs = [db.scale_population(known, data[sex], sex=sex, progress=False) for sex in sexes]
         return outs, time.perf_counter() - t0
 
     _, first = everyone()
@@ -84,8 +87,8 @@ def population(db, known: tuple[str, ...]) -> tuple[float, float, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--skip-clouds", action="store_true")
     parser.add_argument("--x64", action="store_true", help="float64 (default float32)")
+    results.add_arguments(parser)
     args = parser.parse_args()
     select_device("cpu", x64=args.x64)
     import diffbody as db
@@ -94,10 +97,38 @@ def main() -> None:
     print(versions(["jax", "jaxlib", "optimistix", "equinox", "numpy"]))
     print(f"dtype: {'float64' if args.x64 else 'float32'}")
     goals = []
+    inputs = (FIVE[:2],) if args.quick else (FIVE[:2], FIVE)
+    sexes = SEXES[:1] if args.quick else SEXES
+    every = 20 if args.quick else 1
+    run = start_run("anthropometry", args, inputs=inputs, sexes=sexes, held_out_every=every)
+    accuracy = run.table(
+        "held_out",
+        [
+            "sex",
+            "inputs",
+            "diffbody (mm)",
+            "uniform scaling (mm)",
+            "linear floor (mm)",
+            "given reproduced",
+            "goal",
+        ],
+        "lrrrrrl",
+    )
+    speed = run.table(
+        "population",
+        ["population, both sexes", "compile (s)", "run (s)", "given reproduced"],
+        "lrrr",
+    )
 
     # The population first: its first call compiles from cold.
-    for known in (FIVE[:2], FIVE):
-        compile_s, run_s, reproduced = population(db, known)
+    for known in inputs:
+        compile_s, run_s, reproduced = population(db, known, sexes)
+        speed.add(
+            f"{len(known)} inputs, {'all 6,068' if sexes == SEXES else sexes[0]} subjects",
+            f"{compile_s:.1f}",
+            f"{run_s:.2f}",
+            f"{reproduced:.2%}",
+        )
         print(
             f"\npopulation from {len(known)} inputs: compile {compile_s:.1f} s, run "
             f"{run_s:.2f} s for all subjects, reproduced {reproduced:.2%}"
@@ -118,12 +149,22 @@ def main() -> None:
 
     print("\nheld-out accuracy (prior on even rows, odd rows scaled), MAE in mm")
     print(f"  {'sex':<7}{'inputs':<8}{'diffbody':>9}{'uniform':>9}{'linear':>9}{'reproduced':>12}")
-    for known, target in ((FIVE[:2], 12.5), (FIVE, 9.0)):
-        for sex in SEXES:
-            r = held_out(db, sex, known)
+    for known, target in ((FIVE[:2], 12.5), (FIVE, 9.0))[: len(inputs)]:
+        for sex in sexes:
+            r = held_out(db, sex, known, every)
             print(
                 f"  {sex:<7}{len(known):<8}{r['diffbody']:9.2f}{r['uniform']:9.2f}"
                 f"{r['linear']:9.2f}{r['reproduced']:12.1%}"
+            )
+            met = "met" if r["diffbody"] <= target else "**not met**"
+            accuracy.add(
+                sex,
+                len(known),
+                f"{r['diffbody']:.2f}",
+                f"{r['uniform']:.2f}",
+                f"{r['linear']:.2f}",
+                f"{r['reproduced']:.1%}",
+                f"<= {target:g}, {met}",
             )
             goals.append(
                 goal(
@@ -135,12 +176,9 @@ def main() -> None:
                     op="<=",
                 )
             )
-
-    if not args.skip_clouds:
-        from _sphere_cloud import sphere_cloud_figures
-
-        goals += sphere_cloud_figures().get("goals", [])
     print_goals(goals, "anthropometry goals")
+    run.add_goals(goals)
+    run.write(results.out_dir(args.out, args.quick))
 
 
 if __name__ == "__main__":

@@ -5,12 +5,15 @@ import importlib.metadata
 import os
 import platform
 import statistics
+import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from results import Run
 
 TOL_POSITION = 1e-3  # m: what counts as reached
 # Joint limits hold when every stop violation is <= 256 eps of the dtype (rad): float32
@@ -73,6 +76,25 @@ def machine() -> str:
         f"numpy {np.__version__}, dtype {'float64' if jax.config.jax_enable_x64 else 'float32'} "
         f"(matmul precision {jax.config.jax_default_matmul_precision or 'default'}), "
         f"{versions(['diffbody', 'optimistix', 'equinox', 'lineax'])}"
+    )
+
+
+def start_run(benchmark: str, args, **conditions) -> Run:
+    """The record of this run (`results.Run`): the command as typed (without --out), the
+    machine and versions, `conditions` (sizes, seeds, spreads) and --quick."""
+    argv = sys.argv[1:]
+    if "--out" in argv:  # `--out DIR`: where it wrote is not what it measured
+        i = argv.index("--out")
+        argv = argv[:i] + argv[i + 2 :]
+    argv = [a for a in argv if not a.startswith("--out=")]
+    where, what = machine().split("\n")
+    return Run(
+        benchmark,
+        command=" ".join(["python", f"benchmarks/{Path(sys.argv[0]).name}", *argv]),
+        machine=where.removeprefix("machine: "),
+        versions=what.removeprefix("versions: "),
+        conditions=conditions,
+        quick=bool(getattr(args, "quick", False)),
     )
 
 

@@ -32,7 +32,18 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from common import Goal, bench, goal, load_body, machine, not_measured, print_goals, select_device
+import results
+from common import (
+    Goal,
+    bench,
+    goal,
+    load_body,
+    machine,
+    not_measured,
+    print_goals,
+    select_device,
+    start_run,
+)
 
 GOAL_MUJOCO_RATIO = 10.0
 MUJOCO_FIGURE = "forward full body, jit(vmap) batch, poses/s over MuJoCo mj_kinematics loop"
@@ -84,7 +95,8 @@ class MujocoComparison:
 
     def goal(self) -> Goal:
         return goal(
-            f"{MUJOCO_FIGURE} (batch {self.batch:,})",
+            f"{MUJOCO_FIGURE} (batch {self.batch:,}: {self.poses_per_s:,.0f} against "
+            f"{self.mujoco_poses_per_s:,.0f})",
             self.ratio,
             GOAL_MUJOCO_RATIO,
             fmt=".1f",
@@ -159,7 +171,7 @@ def main() -> None:
     parser.add_argument(
         "--device", choices=("cpu", "gpu"), default="cpu", help="gpu: JAX's default backend"
     )
-    parser.add_argument("--quick", action="store_true", help="small batches: a smoke run")
+    results.add_arguments(parser)
     parser.add_argument("--variant", default="male50")
     parser.add_argument("--body", default=None, help="a body JSON file instead")
     parser.add_argument("--repeats", type=int, default=7)
@@ -188,6 +200,18 @@ def main() -> None:
     body = load_body(path=args.body, variant=args.variant)
     print(machine())
     print(f"body: {body.name}, {body.n_segments} segments, {body.n_spheres} spheres")
+    run = start_run(
+        "fk",
+        args,
+        body=body.name,
+        batches=args.batches,
+        repeats=repeats,
+        comparison_batch=comparison_batch,
+        mujoco_poses=mujoco_poses,
+    )
+    table = run.table(
+        "throughput", ["batch", "output", "compile (s)", "run (ms)", "poses/s"], "rlrrr"
+    )
     outputs = {
         "full": lambda p: db.forward(body, p),
         "joints": lambda p: db.forward(body, p).joint_positions,
@@ -199,6 +223,7 @@ def main() -> None:
         for name, f in outputs.items():
             c, r = bench(jax.vmap(f), (pose,), repeats)
             print(f"{n:>9,} {name:>7} {c:>10.2f} {r * 1e3:>10.3f} {n / r:>12,.0f}")
+            table.add(f"{n:,}", name, f"{c:.1f}", f"{r * 1e3:.3g}", f"{n / r:,.0f}")
 
     if args.skip_mujoco:
         row = not_measured(MUJOCO_FIGURE, f">= {GOAL_MUJOCO_RATIO:g}x", "--skip-mujoco")
@@ -207,6 +232,8 @@ def main() -> None:
         print_comparison(comparison)
         row = comparison.goal()
     print_goals([row], f"goals (diffbody on {args.device})")
+    run.add_goals([row])
+    run.write(results.out_dir(args.out, args.quick))
 
 
 if __name__ == "__main__":

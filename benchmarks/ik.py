@@ -3,6 +3,7 @@
     python benchmarks/ik.py [--device cpu|gpu] [--quick] [--skip-peers] [--skip-cli]
                             [--skip-fk] [--n N] [--n-ikpy N] [--n-body N] [--repeats N]
                             [--chunk-size N] [--x64] [--matmul-precision default|highest]
+                            [--out DIR]
 
 Targets: the palm (`left_hand.palm`) of random left-arm poses within diffbody's anatomical
 limits (`peers.arm_poses`, `peers.palm_positions`, fixed seeds): the upper arm, forearm and
@@ -44,7 +45,8 @@ The figures (goals for a 2-core CPU, float32, the default body `diffbody.load_bo
 and a whole-body batch of 4,096, each in one chunk, and pytorch_kinematics on torch's CUDA
 device; its goals: arm >= 1,000,000 solves/s and >= 5x pytorch_kinematics, whole body >=
 100,000 solves/s (the other goals as on the CPU). `--quick` takes small batches and few
-repeats: a smoke run whose figures are not the goals' sizes. On a GPU, JAX's default
+repeats, and runs no peer, command line or fresh process: a smoke run whose figures are not
+the goals' sizes. On a GPU, JAX's default
 matmul precision rounds float32 products to TF32 (about 3 decimal digits), in the solver as
 everywhere; `--matmul-precision highest` runs everything at full float32 precision.
 
@@ -67,6 +69,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+import results
 from common import (
     TOL_POSITION,
     Goal,
@@ -78,6 +81,7 @@ from common import (
     not_measured,
     print_goals,
     select_device,
+    start_run,
     timed,
     versions,
 )
@@ -342,8 +346,8 @@ def posture(body, poses) -> Posture:
     return Posture(spine_deg, change, body.segment_names)
 
 
-def stack(results) -> object:
-    return jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]), *results)
+def stack(outs) -> object:
+    return jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]), *outs)
 
 
 # --- the run ---------------------------------------------------------------------------------
@@ -352,7 +356,7 @@ def main() -> None:
     parser.add_argument(
         "--device", choices=("cpu", "gpu"), default="cpu", help="gpu: JAX's default backend"
     )
-    parser.add_argument("--quick", action="store_true", help="small batches: a smoke run")
+    results.add_arguments(parser)
     parser.add_argument("--n", type=int, default=None, help="arm targets (1,000; GPU 100,000)")
     parser.add_argument("--n-ikpy", type=int, default=None, help="of those, for IKPy (200)")
     parser.add_argument(
@@ -379,6 +383,8 @@ def main() -> None:
         return
     gpu = args.device == "gpu"
     quick = args.quick
+    if quick:  # a smoke run: no peers, no subprocesses
+        args.skip_peers = args.skip_cli = True
     n = args.n or (100 if quick else 100_000 if gpu else 1_000)
     n_ikpy = args.n_ikpy if args.n_ikpy is not None else (10 if quick else 200)
     n_body = args.n_body or (16 if quick else 4_096 if gpu else 256)
@@ -398,6 +404,15 @@ def main() -> None:
         rng = np.random.default_rng(seed)
         return peers.palm_positions(body, peers.arm_poses(body, count, rng))
 
+    run_record = start_run(
+        "ik",
+        args,
+        arm_targets=n,
+        ikpy_targets=n_ikpy,
+        body_targets=n_body,
+        warm_repeats=repeats,
+        seeds={"arm": 0, "single": 1, "body": 2},
+    )
     goals: list[Goal] = []
     speed_goals = {"cpu": "2-core CPU goals", "gpu": "GPU goals"}[args.device]
 
@@ -432,24 +447,12 @@ def main() -> None:
     # 2, 3. whole-body solve_reach
     single = palm_targets(1 + repeats, seed=1)
     print("\n2, 3. solve_reach, whole body (default unknowns), one palm target")
-    first_s, first_solved, output = first_call(args.device, args.x64, single[0])
     name = "solve_reach whole body, first call (fresh process)"
-    if first_solved is None:
-        print(f"  first call: FAILED:\n{output}")
-        goals.append(Goal(name, "failed", f"< {GOAL_FIRST_CALL_S:g} s", False))
-    else:
-        print(f"  first call in a fresh process: {first_s:.2f} s; {first_solved.summary()}")
-        goals.append(
-            goal(
-                name,
-                first_s,
-                GOAL_FIRST_CALL_S,
-                fmt=".2f",
-                unit=" s",
-                op="<",
-                success=first_solved.success,
-            )
-        )
+    goals.append(
+        not_measured(name, f"< {GOAL_FIRST_CALL_S:g} s", "--quick")
+        if quick
+        else first_call_goal(args, name, single[0])
+    )
 
     def solve_one(xyz):
         return db.solve_reach(body, [db.Target.position(EFFECTOR, xyz)])
@@ -521,7 +524,14 @@ def main() -> None:
         print("  peers skipped (--skip-peers)")
         goals.append(not_measured(ratio_name, f">= {ratio_goal:.1f}x", "--skip-peers"))
     else:
-        goals.append(peer_figures(body, targets, n_ikpy, arm, gpu, ratio_name, ratio_goal))
+        peer_table = run_record.table(
+            "peers",
+            ["left arm", "targets", "setup (s)", "run (s)", "within 1 mm", "solves/s"],
+            "lrrrrr",
+        )
+        goals.append(
+            peer_figures(body, targets, n_ikpy, arm, gpu, ratio_name, ratio_goal, peer_table)
+        )
 
     # 5. whole-body batch
     print(f"\n5. solve_reach_batch, whole body (default unknowns), {n_body:,} targets")
@@ -581,14 +591,31 @@ def main() -> None:
     dtype = "float64" if args.x64 else "float32"
     title = f"goals ({speed_goals}; diffbody on {args.device}, {dtype}"
     print_goals(goals, title + (", --quick: small batches" if quick else "") + ")")
+    run_record.add_goals(goals)
+    run_record.write(results.out_dir(args.out, quick))
+
+
+def first_call_goal(args, name: str, xyz) -> Goal:
+    """Goal 2: `solve_reach`'s first call in a fresh process, no compilation cache."""
+    first_s, first_solved, output = first_call(args.device, args.x64, xyz)
+    if first_solved is None:
+        print(f"  first call: FAILED:\n{output}")
+        return Goal(name, "failed", f"< {GOAL_FIRST_CALL_S:g} s", False)
+    print(f"  first call in a fresh process: {first_s:.2f} s; {first_solved.summary()}")
+    return goal(
+        name, first_s, GOAL_FIRST_CALL_S, fmt=".2f", unit=" s", op="<", success=first_solved.success
+    )
 
 
 def _importable(module: str) -> bool:
     return importlib.util.find_spec(module) is not None
 
 
-def peer_figures(body, targets, n_ikpy: int, arm: Batch, gpu: bool, name: str, ratio_goal: float):
-    """pytorch_kinematics (and IKPy, CPU runs only) on the arm targets; the ratio's Goal."""
+def peer_figures(
+    body, targets, n_ikpy: int, arm: Batch, gpu: bool, name: str, ratio_goal: float, table
+):
+    """pytorch_kinematics (and IKPy, CPU runs only) on the arm targets, each a row of
+    `table`; the ratio's Goal."""
     import peers
 
     if not _importable("pytorch_kinematics"):
@@ -603,27 +630,44 @@ def peer_figures(body, targets, n_ikpy: int, arm: Batch, gpu: bool, name: str, r
     with tempfile.TemporaryDirectory() as directory:
         chain = peers.arm_chain(body, directory)
         seed_q = peers.rest_joint_values(body, chain)
-        results = [peers.solve_pytorch_kinematics(chain, targets, seed_q, device=device)]
+        solved = [peers.solve_pytorch_kinematics(chain, targets, seed_q, device=device)]
         if n_ikpy and not gpu and _importable("ikpy"):
-            results.append(peers.solve_ikpy(chain, targets[:n_ikpy], seed_q))
+            solved.append(peers.solve_ikpy(chain, targets[:n_ikpy], seed_q))
     print(f"  {'':<20} {'targets':>8} {'setup s':>8} {'run s':>8} {'<=1mm':>7} {'solves/s':>10}")
     print(
         f"  {'diffbody':<20} {len(targets):>8,} {arm.compile_s:>8.2f} {arm.run_s:>8.3f} "
         f"{np.mean(arm.solved.errors <= TOL_POSITION):>7.1%} {arm.solves_per_s:>10,.0f}"
     )
-    for r in results:
+    for r in solved:
         print(
             f"  {r.name:<20} {len(r.errors):>8,} {r.setup_s:>8.2f} {r.run_s:>8.3f} "
             f"{r.success(TOL_POSITION):>7.1%} {r.solves_per_s:>10,.0f}"
         )
-    for r in results:
+    table.add(
+        "diffbody",
+        f"{len(targets):,}",
+        f"{arm.compile_s:.1f}",
+        f"{arm.run_s:.3g}",
+        f"{np.mean(arm.solved.errors <= TOL_POSITION):.1%}",
+        f"{arm.solves_per_s:,.0f}",
+    )
+    for r in solved:
+        table.add(
+            f"{r.name} {r.version}",
+            f"{len(r.errors):,}",
+            f"{r.setup_s:.1f}",
+            f"{r.run_s:.3g}",
+            f"{r.success(TOL_POSITION):.1%}",
+            f"{r.solves_per_s:,.0f}",
+        )
+    for r in solved:
         print(f"  {r.name} {r.version}: {r.settings}")
     print(
         "  (peers: success within 1 mm only; their URDF limits are boxes, looser than diffbody's)"
     )
-    pk = results[0]
+    pk = solved[0]
     return goal(
-        f"{name} ({pk.name} on {device})",
+        f"{name} ({arm.solves_per_s:,.0f} against {pk.solves_per_s:,.0f}/s, {pk.name} on {device})",
         arm.solves_per_s / pk.solves_per_s,
         ratio_goal,
         fmt=".1f",

@@ -3,11 +3,10 @@ walking example, beside OpenSim's own Scale and InverseKinematics tools run in t
 process on the same files; every figure beside its goal, with the machine and versions.
 
     python benchmarks/mocap.py [--device cpu|gpu] [--x64] [--repeats 5] [--no-opensim]
-                               [--no-first] [--data FOLDER]
+                               [--no-first] [--data FOLDER] [--quick] [--out DIR]
 
 Data: one adult walking (41 markers, 60 Hz, 151 frames) and a static trial (49 markers),
-`--data` (default ../shared/reference/mocap/opensim-gait2354, OpenSim's example files; where
-that folder is missing, the copies in data/mocap/, which lack OpenSim's models).
+`--data` (default data/mocap: OpenSim's example files with its models, see its README).
 
 1. **Accuracy on OpenSim's IK setup**: its 31 markers with their weights (parsed from
    subject01_Setup_IK.xml), 0.4-1.6 s (73 frames). diffbody scales and registers the
@@ -28,17 +27,12 @@ that folder is missing, the copies in data/mocap/, which lack OpenSim's models).
 Medians of `--repeats` runs (the machine may be shared). OpenSim (`pip install opensim`) is
 optional: without it the OpenSim columns say so.
 
-Figures measured earlier (formerly in diffbody/fitting/_mocap.py), why `fit_motion` solves
-the frames in order (`lax.scan`, each from its predecessor's answer): on the shipped walk
-(151 frames, 41 markers, float32, 2 shared CPU cores) in one harness, one vmapped solve of
-all frames, each from the registered static pose moved rigidly onto the frame's pelvis
-markers (up to 40 steps), with a second pass for the frames it left unconverged from their
-nearest converged neighbour, took 7.9 s, and 92 of 151 frames were still unconverged (the
-static pose holds the arms out sideways: they travel 80 degrees to the walking arms, and
-under vmap every frame runs as long as the slowest); the scan took 2.4 s, all but one frame
-converged, mean marker RMS 19.9 mm against the batch's 22.5 mm. In one compiled call with
-the anchors, errors and poses, the scan took 0.8-1.0 s (150-190 frames/s), median 12 solver
-steps a frame.
+`fit_motion` solves the frames in order (`lax.scan`, each from its predecessor's answer)
+rather than all at once under `vmap` from the static pose: the static trial holds the arms out
+sideways, so every frame would travel to the walking arms, and under `vmap` every frame runs
+as long as the slowest.
+
+`--quick` (a smoke run, as in CI): no OpenSim, no fresh process, one repeat.
 """
 
 import argparse
@@ -54,6 +48,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _opensim  # noqa: E402
+import results  # noqa: E402
 from common import (  # noqa: E402
     child_env,
     goal,
@@ -62,6 +57,7 @@ from common import (  # noqa: E402
     not_measured,
     print_goals,
     select_device,
+    start_run,
     versions,
 )
 
@@ -153,11 +149,13 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5, help="timed runs, median (default 5)")
     parser.add_argument("--no-opensim", action="store_true", help="skip OpenSim's tools")
     parser.add_argument("--no-first", action="store_true", help="skip the fresh-process run")
-    parser.add_argument("--data", type=Path, default=None, help="the Gait2354 example folder")
+    parser.add_argument(
+        "--data", type=Path, default=_opensim.OPENSIM_DIR, help="the Gait2354 example folder"
+    )
+    results.add_arguments(parser)
     args = parser.parse_args()
-    if args.data is None:
-        shipped = _opensim.REPO / "data" / "mocap"
-        args.data = _opensim.OPENSIM_DIR if _opensim.OPENSIM_DIR.is_dir() else shipped
+    if args.quick:
+        args.no_opensim, args.no_first, args.repeats = True, True, 1
     for name in (STATIC, WALK, _opensim.IK_SETUP):
         if not (args.data / name).is_file():
             raise SystemExit(f"--data {args.data}: no {name}; give the Gait2354 example folder")
@@ -172,6 +170,15 @@ def main() -> None:
     print(machine())
     print(versions(["jax", "jaxlib", "optimistix", "equinox", "numpy", "opensim"]))
     print(f"dtype: {'float64' if args.x64 else 'float32'}; medians of {args.repeats} runs")
+    run = start_run("mocap", args, repeats=args.repeats, opensim=osim or why_not)
+    markers_table = run.table(
+        "markers",
+        ["fit", "frames", "markers", "mean RMS (mm)", "worst frame RMS (mm)", "max (mm)"],
+        "lrrrrr",
+    )
+    speed_table = run.table(
+        "speed", ["", "diffbody compile (s)", "diffbody run (s)", "OpenSim (s)"], "lrrr"
+    )
 
     # Before anything in this process compiles: the fresh process has the machine to itself.
     first = None if args.no_first else first_answer(args)
@@ -251,6 +258,14 @@ def main() -> None:
         print(
             f"  {label:<38}{frames:6d}  {markers:7d}  {100 * np.nanmean(rms):8.2f}  "
             f"{100 * np.nanmax(rms):7.2f}  {100 * np.nanmax(worst):5.2f}"
+        )
+        markers_table.add(
+            label,
+            frames,
+            markers,
+            f"{1e3 * np.nanmean(rms):.1f}",
+            f"{1e3 * np.nanmax(rms):.1f}",
+            f"{1e3 * np.nanmax(worst):.1f}",
         )
     if ik is not None:
         print(
@@ -354,6 +369,13 @@ def main() -> None:
             f"  {label:<40}{cell(compile_s, '.1f'):>14}{cell(run_s, '.3f'):>14}"
             f"{cell(theirs, '.3f'):>10}  {note if theirs is not None else ''}"
         )
+        theirs_note = "" if theirs is None else f" ({note})"
+        speed_table.add(
+            label.strip(),
+            cell(compile_s, ".1f"),
+            cell(run_s, ".3f"),
+            cell(theirs, ".3f") + theirs_note,
+        )
     line = f"frames/s: diffbody {fps_ik:.0f} (OpenSim's setup), {fps_all:.0f} (whole trial)"
     if ik_frame_s:
         line += (
@@ -366,6 +388,12 @@ def main() -> None:
         "trial)"
     )
     if first is not None:
+        speed_table.add(
+            f"first answer in a fresh process (load, scale, fit {first['frames']} frames)",
+            "(included)",
+            f"{first['answer_s']:.1f}",
+            "",
+        )
         print(
             f"  diffbody's time to a first answer (fresh process: load, scale, fit "
             f"{first['frames']} frames, compilation included): {first['answer_s']:.1f} s, after "
@@ -374,7 +402,8 @@ def main() -> None:
     if ik_frame_s:
         goals.append(
             goal(
-                "frames/s over OpenSim's (fit, after compilation)",
+                f"frames/s over OpenSim's (fit, after compilation: {fps_ik:.0f} against "
+                f"{1.0 / ik_frame_s:.1f}, its solve alone)",
                 fps_ik * ik_frame_s,
                 SPEED_GOAL,
                 fmt=".1f",
@@ -386,6 +415,8 @@ def main() -> None:
         goals.append(not_measured("frames/s over OpenSim's", f">= {SPEED_GOAL:.0f}x", why_not))
     print_goals(goals, "motion-capture goals")
     print("  (here the success column is the fraction of frames whose fit converged)")
+    run.add_goals(goals)
+    run.write(results.out_dir(args.out, args.quick))
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 of continuity-chosen reflections and of the joint refinement, against pixel noise and the
 number of frames; sequences per second batched; the structured solver against a dense one.
 
-    python benchmarks/webb.py [--quick] [--x64] [--repeats 3]
+    python benchmarks/webb.py [--quick] [--x64] [--repeats 3] [--out DIR]
 
 Data: the default body (male50) walking-like and reaching (diffbody.images._motions), and the
 semi-real walk: the joint centres of the OpenSim example walk (`walk_joints`), each seen
@@ -27,7 +27,8 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from common import bench, goal, machine, print_goals
+import results
+from common import bench, goal, machine, print_goals, start_run
 
 NOISE = (0.0, 0.5, 1.0, 2.0)  # px
 FOCAL = 1000.0  # px
@@ -109,7 +110,7 @@ def run_cell(tree, seq, truth_lengths):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="fewer cells and a small batch")
+    results.add_arguments(parser)
     parser.add_argument("--x64", action="store_true", help="run in float64")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--batch", type=int, default=256, help="sequences per timed call")
@@ -132,6 +133,23 @@ def main() -> None:
     goals = []
     frames = (10, 100) if args.quick else (10, 100, 1000)
     noises = (0.0, 1.0) if args.quick else NOISE
+    n = 16 if args.quick else args.batch
+    run = start_run(
+        "webb", args, frames=frames, noise_px=noises, batch=n, repeats=args.repeats, seed=0
+    )
+    stages = ("floor", "webb", "continuity", "refined", "refined*")
+    accuracy = run.table(
+        "accuracy",
+        [
+            "frames",
+            "floor (provable)",
+            "Webb, true reflections",
+            "continuity",
+            "refined",
+            "refined from true reflections",
+        ],
+        "rrrrrr",
+    )
     synth_az = (0.0, 40.0, 80.0, 120.0)
     real_az = (30.0, 60.0, 90.0, 135.0)
 
@@ -169,6 +187,15 @@ def main() -> None:
                         continue  # the same at every noise level
                     cols = f"{rel:>13.2f} {mpjpe:>9.1f} {match:>17.1f}".replace("nan", "  -")
                     print(f"{stage:<13} {data:<11} {T:>6} {noise:>9.1f} {cols}")
+                if noise == 1.0:
+                    accuracy.add(
+                        f"{T}, {'semi-real walk' if data == 'semi-real' else data}",
+                        *(
+                            f"{cell[k][0]:.1f} %"
+                            + ("" if k == "floor" else f" / {cell[k][1]:.0f} mm")
+                            for k in stages
+                        ),
+                    )
                 status = np.bincount(np.asarray(lifted.status).ravel(), minlength=3)
                 print(
                     f"{'':<13} ({len(seq.uv)} sequences, {seconds:.1f} s with compiles; refinement "
@@ -190,9 +217,10 @@ def main() -> None:
     truth = np.asarray(true_reflections(tree, seq.joints))
     free = choose_reflections(tree, seq.uv, seq.root_depth, seq.focal)
     seen = np.asarray(free.separation) > SEPARATED
+    free_match = (np.asarray(free.reflections) == truth)[seen].mean()
     print(
         f"\nreflections by continuity with no frame known (synthetic, 100 frames, 1 px): "
-        f"{(np.asarray(free.reflections) == truth)[seen].mean():.1%} match "
+        f"{free_match:.1%} match "
         f"(a part's mirror image is as smooth: each part's branch is a guess)"
     )
 
@@ -201,7 +229,6 @@ def main() -> None:
     from diffbody.images._reflections import choose_kernel
     from diffbody.images._webb import webb_kernel
 
-    n = 16 if args.quick else args.batch
     world = [walking_motion(body, tree, 100)]
     many = sequences(tree, world * n, (45.0,), 1.0, key, dtype)
     refl = true_reflections(tree, many.joints)
@@ -282,6 +309,20 @@ def main() -> None:
         )
     goals.append(goal("whole pipeline, 100 frames, CPU", n / r2, 1000.0, fmt=",.0f", unit=" seq/s"))
     print_goals(goals, "goals (the seed reports 10-15 % length error on hand-drawn figures)")
+    speed = run.table(
+        "speed", ["batch of 100-frame sequences", "compile (s)", "run (ms)", "sequences/s"], "lrrr"
+    )
+    speed.add(f"Webb alone, {n}", f"{c1:.1f}", f"{r1 * 1e3:.3g}", f"{n / r1:,.0f}")
+    speed.add(f"whole pipeline, {n}", f"{c2:.1f}", f"{r2 * 1e3:.3g}", f"{n / r2:,.0f}")
+    no_anchor = run.table(
+        "reflections", ["reflections by continuity, no frame known", "match"], "lr"
+    )
+    no_anchor.add(
+        "synthetic, 100 frames, 1 px, parts whose two candidates lie > 1 cm apart",
+        f"{free_match:.0%}",
+    )
+    run.add_goals(goals)
+    run.write(results.out_dir(args.out, args.quick))
 
 
 if __name__ == "__main__":
