@@ -79,9 +79,18 @@ def test_read_walk(walk):
     assert np.all(walk.marker("Top.Head")[:, 2] == walk.positions[:, :, 2].max(axis=1))
 
 
-def test_opensim_reads_the_same(static):
+@pytest.fixture(scope="module")
+def osim():
+    """OpenSim, the reference reader: a test requirement (the `opensim` extra), never skipped."""
+    try:
+        import opensim
+    except ImportError as error:
+        pytest.fail(f"OpenSim is needed by this test: pip install -e '.[test,opensim]' ({error})")
+    return opensim
+
+
+def test_opensim_reads_the_same(static, osim):
     """OpenSim's own TRC reader (a reference implementation) gives the same numbers."""
-    osim = pytest.importorskip("opensim")
     table = osim.TimeSeriesTableVec3(str(STATIC))
     assert tuple(table.getColumnLabels()) == static.names
     rows = [0, 150, 299]
@@ -186,9 +195,8 @@ def test_write_read_round_trip_is_exact(round_trip_file, trial, units, axes):
     np.testing.assert_array_equal(back.positions, trial.positions)  # NaN where NaN
 
 
-def test_write_then_opensim_reads_gaps(tmp_path):
+def test_write_then_opensim_reads_gaps(tmp_path, osim):
     """OpenSim reads what write_trc writes, gaps included."""
-    osim = pytest.importorskip("opensim")
     P = np.random.default_rng(0).normal(size=(3, 2, 3))
     P[1, 0] = np.nan
     trial = MarkerTrial(("a", "b"), np.array([0.0, 0.5, 1.0]), P, 2.0, "test")
