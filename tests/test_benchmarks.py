@@ -19,7 +19,7 @@ from results import RESULTS, load  # noqa: E402
 
 # Tables that only a full run fills (peers are not run by --quick).
 FULL_RUN_ONLY = {("ik", "peers")}
-BENCHMARKS = ("fk", "spine", "ik", "anthropometry", "mocap", "webb", "_sphere_cloud")
+BENCHMARKS = ("fk", "spine", "ik", "solvers", "anthropometry", "mocap", "webb", "_sphere_cloud")
 
 
 def readme_tables() -> list[tuple[str, str, str]]:

@@ -47,8 +47,10 @@ class _ReachLM(optx.LevenbergMarquardt):
         return done | reached, result
 
 
-def _solver(dtype) -> optx.AbstractLeastSquaresSolver:
-    # float32 cannot resolve relative changes of 1e-8, so its tolerance is looser.
+def reach_solver(dtype) -> optx.AbstractLeastSquaresSolver:
+    """The solver of a reach attempt in `dtype`: Levenberg-Marquardt with the early stop
+    above, rtol = atol = 1e-6 in float32 (which cannot resolve relative changes of 1e-8),
+    1e-8 in float64 (benchmarks/solvers.py compares it with optimistix's other solvers)."""
     tol = 1e-8 if jnp.finfo(dtype).bits == 64 else 1e-6
     return _ReachLM(rtol=tol, atol=tol)
 
@@ -93,10 +95,13 @@ def solve_free(
     max_steps: int,
     tol_position: Float[Array, ""],
     tol_angle: Float[Array, ""],
+    solver: optx.AbstractLeastSquaresSolver | None = None,
 ) -> tuple[Float[Array, " n_free"], Int[Array, ""]]:
     """The free vector one phase's solve reaches from start `start` (traced: 0 is `init`),
     and its steps. Non-finite targets take no part; a solve that leaves the finite numbers
-    falls back to its start. Never differentiated (see `assess`)."""
+    falls back to its start. Never differentiated (see `assess`). `solver`: by default
+    `reach_solver` of the start's dtype (any optimistix least-squares solver runs on the
+    same problem; only `reach_solver`'s reads the early-stop rows of its args)."""
     body, init, targets, tol_position, tol_angle = no_gradient(
         (body, init, targets, tol_position, tol_angle)
     )
@@ -107,9 +112,8 @@ def solve_free(
     if not layout.n_free:
         return x0, jnp.asarray(0)
     args = (problem, safe, _close_enough(safe, tol_position, tol_angle))
-    sol = optx.least_squares(
-        _residuals, _solver(x0.dtype), x0, args, max_steps=max_steps, throw=False
-    )
+    solver = reach_solver(x0.dtype) if solver is None else solver
+    sol = optx.least_squares(_residuals, solver, x0, args, max_steps=max_steps, throw=False)
     x = jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value, x0)
     return x, jnp.asarray(sol.stats["num_steps"])
 
