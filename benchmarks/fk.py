@@ -192,8 +192,8 @@ def main() -> None:
         args.batches = [1, 1_000] if args.quick else [1, 1_000, 100_000]
         if args.device == "gpu" and not args.quick:
             args.batches.append(1_000_000)
-    comparison_batch = args.comparison_batch or (10_000 if args.quick else 100_000)
-    mujoco_poses = args.mujoco_poses or (1_000 if args.quick else 10_000)
+    comparison_batch = args.comparison_batch or (1_000 if args.quick else 100_000)
+    mujoco_poses = args.mujoco_poses or (200 if args.quick else 10_000)
     repeats = 3 if args.quick else args.repeats
     import diffbody as db
 

@@ -45,7 +45,7 @@ The figures (goals for a 2-core CPU, float32, the default body `diffbody.load_bo
 and a whole-body batch of 4,096, each in one chunk, and pytorch_kinematics on torch's CUDA
 device; its goals: arm >= 1,000,000 solves/s and >= 5x pytorch_kinematics, whole body >=
 100,000 solves/s (the other goals as on the CPU). `--quick` takes small batches and few
-repeats, and runs no peer, command line or fresh process: a smoke run whose figures are not
+repeats, and runs no peer, command line, fresh process or MuJoCo: a smoke run whose figures are not
 the goals' sizes. On a GPU, JAX's default
 matmul precision rounds float32 products to TF32 (about 3 decimal digits), in the solver as
 everywhere; `--matmul-precision highest` runs everything at full float32 precision.
@@ -384,7 +384,7 @@ def main() -> None:
     gpu = args.device == "gpu"
     quick = args.quick
     if quick:  # a smoke run: no peers, no subprocesses
-        args.skip_peers = args.skip_cli = True
+        args.skip_peers = args.skip_cli = args.skip_fk = True
     n = args.n or (100 if quick else 100_000 if gpu else 1_000)
     n_ikpy = args.n_ikpy if args.n_ikpy is not None else (10 if quick else 200)
     n_body = args.n_body or (16 if quick else 4_096 if gpu else 256)

@@ -131,9 +131,9 @@ def main() -> None:
     )
     key = jax.random.PRNGKey(0)
     goals = []
-    frames = (10, 100) if args.quick else (10, 100, 1000)
-    noises = (0.0, 1.0) if args.quick else NOISE
-    n = 16 if args.quick else args.batch
+    frames = (10,) if args.quick else (10, 100, 1000)
+    noises = (1.0,) if args.quick else NOISE
+    n = 4 if args.quick else args.batch
     run = start_run(
         "webb", args, frames=frames, noise_px=noises, batch=n, repeats=args.repeats, seed=0
     )
@@ -168,7 +168,7 @@ def main() -> None:
     print("\nstage         data        frames  noise px  length err %  MPJPE mm  reflections ok %")
     table = {}
     for data in ("synthetic", "semi-real"):
-        for T in frames + ((151,) if data == "semi-real" else ()):
+        for T in frames + ((151,) if data == "semi-real" and not args.quick else ()):
             if data == "semi-real" and T > len(real):
                 continue
             if data == "synthetic":
@@ -266,7 +266,7 @@ def main() -> None:
     # --- the structured solve against a dense one (one sequence, one refinement) ----------
     import lineax as lx
 
-    for T in (30,) if args.quick else (30, 100):
+    for T in () if args.quick else (30, 100):
         one = sequences(tree, [walking_motion(body, tree, T)], (45.0,), 1.0, key, dtype)
         ch = choose_kernel(tree, one.uv[0], one.root_depth[0], one.focal[0], anchor[0])
         times = {}
@@ -285,11 +285,12 @@ def main() -> None:
         print(f"  one refinement of {T} frames ({T * (tree.n_parts + 1) * 2 + 8} unknowns): {text}")
 
     # --- goals ---------------------------------------------------------------------------------
+    goal_frames = frames[-1] if args.quick else 100  # --quick: the goals' conditions unmet
     for data in ("synthetic", "semi-real"):
-        rel, mpjpe, _ = table[data, 100, 1.0]["refined"]
+        rel, mpjpe, _ = table[data, goal_frames, 1.0]["refined"]
         goals.append(
             goal(
-                f"length error, refined, {data}, 1 px, 100 frames",
+                f"length error, refined, {data}, 1 px, {goal_frames} frames",
                 rel,
                 1.0,
                 fmt=".2f",
@@ -299,7 +300,7 @@ def main() -> None:
         )
         goals.append(
             goal(
-                f"MPJPE, refined, {data}, 1 px, 100 frames",
+                f"MPJPE, refined, {data}, 1 px, {goal_frames} frames",
                 mpjpe,
                 20.0,
                 fmt=".1f",
