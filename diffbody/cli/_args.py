@@ -87,7 +87,12 @@ def add_body_args(p) -> None:
 def add_solver_args(p) -> None:
     """Add --no-spine, --segments and --starts, the reach solver's options, to a sub-parser."""
     p.add_argument("--no-spine", action="store_true", help="keep the spine at rest")
-    p.add_argument("--segments", nargs="+", default=None, help="only these segments move (names)")
+    p.add_argument(
+        "--segments",
+        nargs="+",
+        default=None,
+        help="only these segments move (names, on the effector's chain)",
+    )
     p.add_argument("--starts", type=positive_int, default=8, help="most solver starts (default 8)")
 
 
@@ -130,3 +135,40 @@ def check_names(body, effectors: list[str], segments: list[str] | None) -> None:
             body.segment_index(name)
         except KeyError as e:
             raise KeyError(f"--segments: {e.args[0]}{hint}") from None
+
+
+def effector_chain(body, effectors: list[str]) -> list[str]:
+    """The segments whose joints move the effectors, top-down (every segment for the center
+    of gravity or a body re-rooted elsewhere); the whole body's placement never moves in a
+    reach, so it is not among them."""
+    from ..ik._targets import point_index
+    from ..ik._unknowns import path_to_top, point_segment
+
+    index = [point_index(body, e) for e in effectors]
+    cog = body.n_joints + len(body.feature_names)
+    if cog in index or body.root_joint != body.default_root_joint:
+        on = set(range(body.n_segments))
+    else:
+        on = {s for i in index for s in path_to_top(body, point_segment(body, i))}
+    top_down = sorted(on - {0}, key=lambda s: (len(path_to_top(body, s)), s))
+    return [body.segment_names[s] for s in top_down]
+
+
+def check_segments(body, effectors: list[str], segments: list[str] | None) -> str:
+    """--segments against the effectors' chain: a ValueError naming both when none of them
+    is on it; else a note naming those off it (they cannot move an effector and are
+    ignored), or "" when all are on it."""
+    if not segments:
+        return ""
+    chain = effector_chain(body, effectors)
+    off = [s for s in segments if s not in chain]
+    which = " ".join(f"--effector {e}" for e in effectors)
+    if len(off) == len(segments):
+        raise ValueError(
+            f"--segments {' '.join(segments)}: none of them moves {which}; the segments on "
+            f"{'its chain' if len(effectors) == 1 else 'their chains'} are {', '.join(chain)}; "
+            "name some of those, or leave --segments out to let the whole chain move"
+        )
+    if not off:
+        return ""
+    return f"note: --segments {' '.join(off)}: not on the chain of {which}, ignored"

@@ -9,6 +9,7 @@ from ._args import (
     body_from_args,
     check_names,
     check_output,
+    check_segments,
     positive_int,
 )
 
@@ -111,6 +112,9 @@ def _batch(args) -> int:
         raise ValueError(f"--out {args.out}: is the targets file; give another file name")
     body = body_from_args(args)
     check_names(body, args.effector, args.segments)
+    note = check_segments(body, args.effector, args.segments)
+    if note:
+        print(note)
     out = solve_reach_batch(
         body,
         args.effector,

@@ -7,6 +7,7 @@ from ._args import (
     body_from_args,
     check_names,
     check_output,
+    check_segments,
     finite_float,
 )
 
@@ -53,6 +54,9 @@ def _reach(args) -> int:
     check_output("--png", args.png)
     body = body_from_args(args)
     check_names(body, [args.effector], args.segments)
+    note = check_segments(body, [args.effector], args.segments)
+    if note:
+        print(note)
     target = np.asarray(args.target, float)
     out = solve_reach(
         body,

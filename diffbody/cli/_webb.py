@@ -11,7 +11,14 @@ Input files:
 - root-depth CSV: one number per row (an optional header line), the reference joint's
   depth in metres in each frame: as many rows as the points file;
 - skeleton JSON (``--skeleton``, default the body's major joints): see
-  `diffbody.read_joint_tree`.
+  `diffbody.read_joint_tree`;
+- anchor JSON (``--anchor``, with ``--anchor-frame N``, default 0): the reflection of parts
+  in frame N, an object ``{"<start>-><end>": "near" or "far"}`` keyed by the part names of
+  the output's ``lengths_m`` (0 and 1, the output's reflection codes, are taken too). Near:
+  the part's ending joint is the nearer of the two points on its image ray at the part's
+  length from its starting joint (the part points toward the camera); far: the farther one.
+  Parts left out are left to continuity. Without an anchor every part's mirror image is as
+  smooth as the truth, and the reflections match it about half the time.
 
 Output: ``--out`` JSON with the lengths per part (refined, and Webb's lower bounds), the 3D
 joints per frame (camera frame: x right, y down, z along the optical axis, m), the
@@ -147,6 +154,91 @@ def read_depths(path: str, n_frames: int):
     return np.asarray(values)
 
 
+ANCHOR_EXAMPLE = '{"center_hip->left_hip": "near", "left_hip->left_knee": "far", ...}'
+
+
+def read_anchor(path: str, part_names: tuple[str, ...]):
+    """(P,) reflection codes from an anchor JSON (module docstring): NEAR 0 or FAR 1 for the
+    parts it names, -1 (left to continuity) for the others; errors name the file, the
+    entry and the fix."""
+    import json
+
+    import numpy as np
+
+    from ..images._webb import FAR, NEAR
+
+    p = Path(path)
+    if p.is_dir():
+        raise ValueError(f"{path}: is a directory; expected an anchor JSON file ({ANCHOR_EXAMPLE})")
+    data = p.read_bytes()
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not UTF-8 text; save the anchor as a UTF-8 JSON file") from None
+
+    def pairs(items):
+        seen = set()
+        for key, _ in items:
+            if key in seen:
+                raise ValueError(f"{path}: entry {key!r} is given twice; keep one")
+            seen.add(key)
+        return dict(items)
+
+    try:
+        doc = json.loads(text, object_pairs_hook=pairs)
+    except json.JSONDecodeError as e:
+        raise ValueError(
+            f"{path}: not JSON (line {e.lineno}, column {e.colno}: {e.msg}); "
+            f"expected an object such as {ANCHOR_EXAMPLE}"
+        ) from None
+    if not isinstance(doc, dict):
+        kinds = {list: "an array", str: "a string", bool: "true or false", type(None): "null"}
+        kind = kinds.get(type(doc), "a number")
+        raise ValueError(
+            f"{path}: expected a JSON object of part reflections, got {kind}; e.g. {ANCHOR_EXAMPLE}"
+        )
+    if not doc:
+        raise ValueError(
+            f"{path}: no part's reflection given; name at least one part, e.g. {ANCHOR_EXAMPLE}"
+        )
+    codes = {"near": NEAR, "far": FAR}
+    anchor = np.full(len(part_names), -1)
+    for key, value in doc.items():
+        if key not in part_names:
+            raise ValueError(
+                f"{path}: entry {key!r}: no such part of the skeleton; parts are named "
+                f"<start>-><end> by their joints: {', '.join(part_names)}"
+            )
+        if isinstance(value, str) and value.strip().lower() in codes:
+            anchor[part_names.index(key)] = codes[value.strip().lower()]
+        elif type(value) is int and value in (NEAR, FAR):
+            anchor[part_names.index(key)] = value
+        else:
+            raise ValueError(
+                f'{path}: entry {key!r}: the reflection must be "near" or "far" '
+                f"(or 0 near, 1 far), got {json.dumps(value)}; leave a part out when unknown"
+            )
+    return anchor
+
+
+def _anchor(args, tree, n_frames: int):
+    """--anchor's codes (None without it) and --anchor-frame as a frame index (0..T-1)."""
+    if args.anchor is None:
+        if args.anchor_frame is not None:
+            raise ValueError(
+                f"--anchor-frame {args.anchor_frame}: needs --anchor FILE, the reflections "
+                "of the parts in that frame"
+            )
+        return None, 0
+    frame = 0 if args.anchor_frame is None else args.anchor_frame
+    if not -n_frames <= frame < n_frames:
+        raise ValueError(
+            f"--anchor-frame {frame}: {args.points} has {n_frames} frames; give 0 to "
+            f"{n_frames - 1} (or -1 for the last)"
+        )
+    return read_anchor(args.anchor, tree.part_names), frame % n_frames
+
+
 def _webb(args) -> int:
     import json
 
@@ -165,11 +257,15 @@ def _webb(args) -> int:
     depth = read_depths(args.root_depth, len(uv))
     if len(uv) < 3:
         raise ValueError(f"{args.points}: {len(uv)} frames; the analysis needs at least 3")
+    anchor, frame = _anchor(args, tree, len(uv))
     if args.no_refine:
-        choice, lifted = choose_reflections(tree, uv, depth, args.focal), None
+        choice = choose_reflections(tree, uv, depth, args.focal, anchor=anchor, anchor_frame=frame)
+        lifted = None
     else:
         options = LiftOptions(pixel_sigma=args.pixel_sigma)
-        choice, lifted = lift(tree, uv, depth, args.focal, options=options)
+        choice, lifted = lift(
+            tree, uv, depth, args.focal, anchor=anchor, anchor_frame=frame, options=options
+        )
     webb_lengths = np.asarray(choice.lengths)
     if lifted is None:
         lengths, joints, status = webb_lengths, np.asarray(choice.joints), None
@@ -177,6 +273,9 @@ def _webb(args) -> int:
         lengths, joints = np.asarray(lifted.lengths), np.asarray(lifted.joints)
         status = LiftStatus(int(lifted.status))
     print(f"{len(uv)} frames, {tree.n_parts} parts, reference {tree.names[tree.root]!r}")
+    if anchor is not None:
+        known = f"{int((anchor >= 0).sum())} of {tree.n_parts}"
+        print(f"anchor: the reflections of {known} parts in frame {frame} ({args.anchor})")
     print(f"{'part':<34} {'Webb (m)':>9} {'refined (m)':>12}")
     for k, name in enumerate(tree.part_names):
         refined = "" if args.no_refine else f"{float(lifted.lengths[k]):12.4f}"
@@ -201,6 +300,14 @@ def _webb(args) -> int:
             "joints_frame": "camera: x right, y down, z along the optical axis",
             "reflections": np.asarray(choice.reflections).tolist(),
             "reflection_codes": {"0": "near (toward the camera)", "1": "far"},
+            "anchor": None
+            if anchor is None
+            else {
+                "frame": frame,
+                "reflections": {
+                    n: ("near", "far")[a] for n, a in zip(tree.part_names, anchor) if a >= 0
+                },
+            },
             "refined": not args.no_refine,
             "status": None if status is None else status.name.lower(),
             "reprojection_rms_px": None if args.no_refine else float(lifted.reprojection_rms),
@@ -257,6 +364,19 @@ def add_webb_command(sub) -> None:
     )
     p.add_argument(
         "--pixel-sigma", type=positive_float, default=1.0, help="image noise (px, default 1)"
+    )
+    p.add_argument(
+        "--anchor",
+        default=None,
+        metavar="FILE",
+        help='JSON of part reflections in the anchor frame: {"<start>-><end>": "near" or "far"}',
+    )
+    p.add_argument(
+        "--anchor-frame",
+        type=int,
+        default=None,
+        metavar="N",
+        help="the frame --anchor describes (default 0, the first; -1 the last)",
     )
     p.add_argument("--no-refine", action="store_true", help="Webb's estimate only")
     p.add_argument("--out", default="lengths.json", help="JSON to write (default lengths.json)")

@@ -1,5 +1,8 @@
 """The command line on bad input: exit status 2 and a message naming the file or option,
-never a traceback. Every case fails before any solve, so these run in milliseconds."""
+never a traceback. Every case fails before any solve, so these run in milliseconds; the last
+test solves the rows a gap in the data leaves valid."""
+
+import csv
 
 import numpy as np
 import pytest
@@ -207,10 +210,23 @@ def test_bad_body_file(tmp_path, capsys, kind):
     assert str(body) in err
 
 
-def test_a_missing_value_passes_through_as_an_invalid_row(tmp_path):
+def test_a_missing_value_passes_through_as_an_invalid_row(tmp_path, capsys):
     """nan or inf in a row is a gap in the data, not a malformed file: the row is solved as
-    an invalid target (status invalid_target, valid 0), as `solve_reach_batch` does."""
-    targets = tmp_path / "gaps.csv"
-    targets.write_text("0.3,nan,1.0\n0.3,0.2,-inf\n0.3,0.2,1e999\n")
+    an invalid target (status invalid_target, valid 0), as `solve_reach_batch` does, and
+    the rows around it are solved as usual."""
+    targets, results = tmp_path / "gaps.csv", tmp_path / "results.csv"
+    targets.write_text("0.3,nan,1.0\n0.3,0.2,1.0\n0.3,0.2,-inf\n0.3,0.2,1e999\n")
     xyz = _read_targets(str(targets), 1)
-    assert xyz.shape == (3, 1, 3) and not np.isfinite(xyz).all(axis=(1, 2)).any()
+    finite = np.isfinite(xyz).all(axis=(1, 2))
+    assert xyz.shape == (4, 1, 3) and finite.tolist() == [False, True, False, False]
+    # The arm from one start in chunks of 2: the compiled solve of tests/ik/test_batch.py.
+    argv = ["batch", str(targets), "--effector", "left_hand.palm", "--out", str(results)]
+    argv += ["--segments", "left_upper_arm", "left_forearm", "left_hand", "--starts", "1"]
+    assert main(argv + ["--chunk-size", "2"]) == 0
+    assert "1 of 4 rows reached" in capsys.readouterr().out
+    with results.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["row"] for r in rows] == ["0", "1", "2", "3"]
+    assert [r["status"] for r in rows] == ["invalid_target", "success"] + ["invalid_target"] * 2
+    assert [r["left_hand.palm.valid"] for r in rows] == ["0", "1", "0", "0"]
+    assert [r["left_hand.palm.reached"] for r in rows] == ["0", "1", "0", "0"]

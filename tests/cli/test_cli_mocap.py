@@ -1,32 +1,25 @@
-"""The mocap command end to end (diffbody.cli._main.main called directly) on a short slice of the
-shipped walking trial, and its errors on bad input."""
-
-import argparse
-import inspect
+"""The mocap command end to end, through the command line's own parser (`diffbody.cli.main`,
+the console script's entry point, called directly), on two short slices of the shipped static
+trial, and its errors on bad input."""
 
 import numpy as np
 import pytest
 
-import diffbody.cli._main as cli
-from diffbody.cli._mocap import add_mocap_command
+from diffbody.cli import main
 from diffbody.files._data_files import data_file
 from diffbody.fitting._trc import read_trc, write_trc
 
 
-@pytest.fixture
-def main(monkeypatch):
-    """`diffbody.cli._main.main` with the mocap command: wired here, the way main() wires it,
-    until _cli.py calls add_mocap_command itself."""
-    if "add_mocap_command" not in inspect.getsource(cli):
-        add_subparsers = argparse.ArgumentParser.add_subparsers
-
-        def wired(self, *args, **kwargs):
-            sub = add_subparsers(self, *args, **kwargs)
-            add_mocap_command(sub)
-            return sub
-
-        monkeypatch.setattr(argparse.ArgumentParser, "add_subparsers", wired)
-    return cli.main
+def test_mocap_is_a_command(capsys):
+    """`diffbody mocap` is a command of the command line itself: its help, through main."""
+    with pytest.raises(SystemExit) as exit:
+        main(["mocap", "--help"])
+    assert exit.value.code == 0
+    text = capsys.readouterr().out
+    assert text.startswith("usage: diffbody mocap ") and "--markerset" in text
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    assert "mocap" in capsys.readouterr().out
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +35,7 @@ def trials(tmp_path_factory):
     return paths
 
 
-def test_mocap_command(main, trials, tmp_path, capsys):
+def test_mocap_command(trials, tmp_path, capsys):
     out, png = tmp_path / "fit.npz", tmp_path / "fit.png"
     argv = ["mocap", str(trials[0]), str(trials[1]), "--no-prior"]
     assert main(argv + ["--out", str(out), "--png", str(png)]) == 0
@@ -65,7 +58,7 @@ def test_mocap_command(main, trials, tmp_path, capsys):
     assert str(tmp_path / "fit.body.json") in text
 
 
-def test_mocap_bad_file_exits_2(main, trials, tmp_path, capsys):
+def test_mocap_bad_file_exits_2(trials, tmp_path, capsys):
     bad = tmp_path / "bad.trc"
     lines = trials[1].read_text().splitlines()
     cells = lines[6].split("\t")
@@ -88,7 +81,7 @@ def test_mocap_bad_file_exits_2(main, trials, tmp_path, capsys):
         ("--time", "9 10", "no frame"),
     ],
 )
-def test_mocap_bad_options_exit_2(main, trials, tmp_path, capsys, option, value, message):
+def test_mocap_bad_options_exit_2(trials, tmp_path, capsys, option, value, message):
     out = ["--out", str(tmp_path / "fit.npz")] if option != "--out" else []
     argv = ["mocap", str(trials[0]), str(trials[1]), option, *value.split(), *out]
     assert main(argv) == 2

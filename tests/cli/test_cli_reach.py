@@ -89,3 +89,61 @@ def test_the_command_line_keeps_compiled_solvers(tmp_path, env, expected):
     )
     assert run.returncode == 0, run.stderr
     assert run.stdout.strip().splitlines()[-1] == expected.format(xdg=tmp_path)
+
+
+ARM = ["left_upper_arm", "left_forearm", "left_hand"]
+
+
+def test_reach_segments_off_the_chain_are_named(male50, monkeypatch, tmp_path, capsys):
+    """Segments that cannot move the effector are named in a note and left out; the arm
+    alone still reaches, and the legs named with it stay as they were."""
+    monkeypatch.setattr("diffbody.cli._reach.body_from_args", lambda args: male50)
+    out = tmp_path / "result.json"
+    argv = ["reach", "--effector", "left_hand.palm", "--target", "0.3", "0.2", "1.0"]
+    argv += ["--segments", *ARM, "right_thigh", "left_shank", "--starts", "1"]
+    assert main(argv + ["--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    note = "note: --segments right_thigh left_shank: not on the chain of --effector left_hand.palm"
+    assert note in text
+    data = json.loads(out.read_text())
+    assert data["status"] == "success" and data["spine_target_deg"] is None
+    rest = np.degrees(np.asarray(male50.rest_pose().angles))
+    for name in ("right_thigh", "left_shank", "left_clavicle"):
+        i = male50.segment_names.index(name)
+        np.testing.assert_allclose(data["angles_deg"][name], rest[i], atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    "command, effectors, segments",
+    [
+        ("reach", ["left_hand.palm"], ["right_thigh", "right_shank"]),
+        ("reach", ["left_wrist"], ["left_hand"]),  # the wrist ends the forearm
+        ("batch", ["left_hand.palm", "right_ankle"], ["head", "whole_body"]),
+    ],
+)
+def test_no_segment_on_the_chain_is_an_error(
+    male50, monkeypatch, tmp_path, capsys, command, effectors, segments
+):
+    """Naming no segment that moves the effector is a mistake, told before any solve with
+    the segments given and the chain to choose from, not a start pose "not reached"."""
+    monkeypatch.setattr(f"diffbody.cli._{command}.body_from_args", lambda args: male50)
+    if command == "batch":
+        targets = tmp_path / "t.csv"
+        targets.write_text(",".join(["0.3,0.2,1.0"] * len(effectors)) + "\n")
+        argv = ["batch", str(targets), "--out", str(tmp_path / "r.csv")]
+    else:
+        argv = ["reach", "--target", "0.3", "0.2", "1.0"]
+    for e in effectors:
+        argv += ["--effector", e]
+    assert main(argv + ["--segments", *segments]) == 2
+    err = capsys.readouterr().err
+    which = " ".join(f"--effector {e}" for e in effectors)
+    assert f"diffbody: error: --segments {' '.join(segments)}: none of them moves {which}" in err
+    assert "Traceback" not in err and "leave --segments out" in err
+    chain = err.split(" are ")[1].split(";")[0].split(", ")
+    assert chain[0] == "pelvis" and "whole_body" not in chain
+    assert "left_forearm" in chain and not set(segments) & set(chain)
+    if command == "batch":
+        assert "right_foot" not in chain and {"right_thigh", "right_shank"} <= set(chain)
+    else:
+        assert "right_thigh" not in chain
