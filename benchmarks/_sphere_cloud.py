@@ -1,19 +1,25 @@
-"""Sphere-cloud fits (part 3 of benchmarks/anthropometry.py; runs alone too):
+"""Sphere-cloud fits (their own benchmark; `sphere_cloud_figures` is callable from others):
 
-    python benchmarks/_sphere_cloud.py [--clouds 8] [--x64]
+    python benchmarks/_sphere_cloud.py [--clouds 8] [--seeds 4] [--quick] [--out DIR] [--x64]
 
-Synthetic clouds: the male 50th percentile body with every scale group's axial and radial
-factor drawn from exp(N(0, 0.05^2)) (about the spread of adult proportions), in a random
-posture (`diffbody.sample_pose`, spread 0.15: a person standing, limbs moved, the wrist
-16 cm from the standard position in the median, 32 cm at the 90th percentile, segments
-turned 7 degrees in the median, the whole body up to +-0.5 rad about the vertical),
-measured with Gaussian noise on every number and a fraction of the spheres replaced by
-outliers (`diffbody.synthetic_cloud`). Each cloud is fitted from the standard position
-without correspondences. Figures: time per cloud alone and batched (compile
-apart), the segment-length error (mean and max over every segment of length > 0, over
-the clouds of a condition) against noise and outlier fraction, and how often a fit lands
-(mean error < 2 mm, exact clouds) as postures move farther from the start (spread 0.3: the
-wrist 28 cm away in the median, 54 cm at the 90th percentile).
+Synthetic clouds as a new user meets them: the male 50th percentile body with every scale
+group's axial and radial factor drawn from exp(N(0, 0.05^2)) (about the spread of adult
+proportions), in a random posture (`diffbody.sample_pose`, spread 0.3; how far that moves
+the wrists is printed beside the landing table) with the whole body turned about the
+vertical by any angle (turn = pi), measured with Gaussian noise on every number and a
+fraction of the spheres replaced by outliers (`diffbody.synthetic_cloud`). Each cloud is
+fitted from the standard position (facing +X) without correspondences. A cloud *lands* when
+its mean segment-length error is below 2 mm.
+
+Figures, `--clouds` clouds from each of `--seeds` seeds per cell (the same people and
+postures in every cell of a table): the segment-length error (mean and max over every
+segment of length > 0 of every cloud) and the share of clouds landed against noise and
+outlier fraction (table "accuracy"); the share of exact clouds landed against posture
+spread, turned any way and, beside it, turned by at most +-0.5 rad (`sample_pose`'s
+default, the setting of earlier runs: it tells the turn from the spread apart; table
+"landing"); time per cloud alone and batched, compile apart (table "speed"). `--quick`: 2
+clouds, one seed, one accuracy cell (5 mm, 10 %), one landing row (spread 0.3). Results:
+benchmarks/results/sphere_cloud.json (benchmarks/results.py).
 """
 
 import argparse
@@ -22,30 +28,61 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from common import goal, machine, print_goals, select_device, versions
+import results
+from common import goal, load_body, machine, print_goals, select_device, start_run, versions
 
 NOISE_MM = (0, 2, 5, 10)
 OUTLIERS = (0.0, 0.1, 0.2)
 SCALE_SPREAD = 0.05  # log scale factor deviation
+SPREAD = 0.3  # posture spread of the accuracy table and the speed figures
+TURN = np.pi  # rad: the whole body turned about the vertical by up to +-TURN
+SPREADS = (0.1, 0.15, 0.2, 0.3)  # the landing table's rows
+TURN_BEFORE = 0.5  # rad: sample_pose's default turn, the landing table's second column
+LANDED = 0.002  # m: a cloud lands when its mean segment-length error is below this
+GOAL_CELL = (5, 0.1)  # noise (mm), outliers of the accuracy goal
+SEED_SPEED = 0  # the speed figures' clouds; the tables' are seeds 1..--seeds
 
 
-def make_clouds(db, body, seed: int, n: int, noise: float, outliers: float, spread=0.15):
-    """n clouds: (centers (n, m, 3), radii (n, m), true segment lengths (n, n_seg))."""
+def _one_cloud(body, key, noise, spread, turn, outliers):
+    """One cloud: (centers, radii, the person's segment lengths, each wrist's distance from
+    where the standard position puts it, the whole body's turn and shift aside)."""
+    import dataclasses
+
+    import diffbody as db
     from diffbody.anthropometry._scaling import per_segment
 
     g = len(db.SCALE_GROUPS)
+    k_ax, k_ra, k_pose, k_cloud = jax.random.split(key, 4)
+    axial = jnp.exp(SCALE_SPREAD * jax.random.normal(k_ax, (g,)))
+    radial = jnp.exp(SCALE_SPREAD * jax.random.normal(k_ra, (g,)))
+    person = db.scale_body(body, per_segment(body, axial), per_segment(body, radial))
+    pose = db.sample_pose(body, k_pose, spread=spread, turn=turn)
+    centers, radii, _ = db.synthetic_cloud(person, pose, k_cloud, noise, outliers)
+    rest = body.rest_pose()
+    posture = dataclasses.replace(
+        pose, position=rest.position, angles=pose.angles.at[0].set(rest.angles[0])
+    )
+    wrists = [body.joint_index(f"{side}_wrist") for side in ("left", "right")]
+    moved = db.forward(body, posture).joint_positions - db.forward(body, rest).joint_positions
+    return centers, radii, person.lengths, jnp.linalg.norm(moved[jnp.asarray(wrists)], axis=-1)
 
-    def one(key):
-        k_ax, k_ra, k_pose, k_cloud = jax.random.split(key, 4)
-        axial = jnp.exp(SCALE_SPREAD * jax.random.normal(k_ax, (g,)))
-        radial = jnp.exp(SCALE_SPREAD * jax.random.normal(k_ra, (g,)))
-        person = db.scale_body(body, per_segment(body, axial), per_segment(body, radial))
-        pose = db.sample_pose(body, k_pose, spread=spread)
-        centers, radii, _ = db.synthetic_cloud(person, pose, k_cloud, noise, outliers)
-        return centers, radii, person.lengths
 
+# Compiled cloud makers per (body, outlier fraction: it fixes how many spheres are replaced).
+_MAKERS: dict = {}
+
+
+def make_clouds(
+    db, body, seed: int, n: int, noise: float, outliers: float, spread=SPREAD, turn=TURN
+):
+    """n clouds: (centers (n, m, 3), radii (n, m), true segment lengths (n, n_seg), the
+    wrists' distances from the standard position (n, 2) m, posture alone). `db`: the
+    diffbody module (kept for callers)."""
+    key = (id(body), float(outliers))
+    if key not in _MAKERS:
+        one = lambda k, a, s, t: _one_cloud(body, k, a, s, t, float(outliers))  # noqa: E731
+        _MAKERS[key] = body, jax.jit(jax.vmap(one, in_axes=(0, None, None, None)))
     keys = jax.random.split(jax.random.PRNGKey(seed), n)
-    return jax.tree.map(np.asarray, jax.jit(jax.vmap(one))(keys))
+    return jax.tree.map(np.asarray, _MAKERS[key][1](keys, noise, spread, turn))
 
 
 def length_errors(fit, lengths: np.ndarray) -> np.ndarray:
@@ -54,73 +91,184 @@ def length_errors(fit, lengths: np.ndarray) -> np.ndarray:
     return np.abs(np.asarray(fit.body.lengths) - lengths)[:, keep]
 
 
-def sphere_cloud_figures(clouds: int = 8) -> dict:
+def _landed(k: int, n: int) -> str:
+    return f"{k} of {n} ({k / n:.0%})"
+
+
+def sphere_cloud_figures(
+    clouds: int = 8, seeds: int = 4, quick: bool = False, run: "results.Run | None" = None
+) -> dict:
+    """Print the figures (module docstring); add the tables "accuracy", "landing" and
+    "speed" to `run` when given. `quick`: one accuracy cell (5 mm, 10 %), one landing row
+    (spread 0.3), `clouds` clouds from one seed (a smoke run). Returns {"goals": [Goal]}."""
     import diffbody as db
 
-    body = db.load_body(variant="male50")
+    body = load_body(variant="male50")
+    seeds = 1 if quick else seeds
+    n = clouds * seeds
     goals = []
-    centers, radii, lengths = make_clouds(db, body, 0, max(clouds, 2), 0.005, 0.1)
+    done = {}
 
-    # One cloud alone: the first call compiles, then the median of three.
+    def fit_cell(noise_mm, frac, spread=SPREAD, turn=TURN):
+        """(fit, true lengths, wrist distances) of the cell's n clouds, seeds 1..seeds; each
+        condition is fitted once (the accuracy table's 0 mm, 0 % cell is the landing table's
+        spread 0.3 row)."""
+        key = (noise_mm, frac, spread, turn)
+        if key not in done:
+            parts = [
+                make_clouds(db, body, s, clouds, noise_mm / 1000, frac, spread, turn)
+                for s in range(1, seeds + 1)
+            ]
+            c, r, L, wrist = (np.concatenate(a) for a in zip(*parts))
+            fit = db.fit_spheres_batch(body, c, r, chunk_size=clouds, progress=False)
+            done[key] = fit, L, wrist
+        return done[key]
+
+    # --- speed: one cloud alone (the first call compiles, then the median of three), and
+    # batched (the first call compiles for the chunk size, the second is timed).
+    centers, radii, _, _ = make_clouds(db, body, SEED_SPEED, max(clouds, 2), 0.005, 0.1)
     t0 = time.perf_counter()
     jax.block_until_ready(db.fit_spheres(body, centers[0], radii[0]).axial)
-    compile_one = time.perf_counter() - t0
+    first_one = time.perf_counter() - t0
     runs = []
     for i in range(3):
         t0 = time.perf_counter()
         jax.block_until_ready(db.fit_spheres(body, centers[i % 2], radii[i % 2]).axial)
         runs.append(time.perf_counter() - t0)
     alone = float(np.median(runs))
-    print(f"\nsphere-cloud fit, one cloud: compile+first {compile_one:.1f} s, then {alone:.3f} s")
-
-    # Batched: the first call compiles for the chunk size, the second is timed.
-    batch = db.fit_spheres_batch(body, centers, radii, chunk_size=clouds, progress=False)
     t0 = time.perf_counter()
-    batch = db.fit_spheres_batch(body, centers, radii, chunk_size=clouds, progress=False)
-    batched = len(radii) / (time.perf_counter() - t0)
-    print(f"batched ({len(radii)} clouds per call): {batched:.2f} clouds/s")
+    db.fit_spheres_batch(body, centers, radii, chunk_size=clouds, progress=False)
+    first_batch = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    db.fit_spheres_batch(body, centers, radii, chunk_size=clouds, progress=False)
+    per_batch = time.perf_counter() - t0
+    batched = len(radii) / per_batch
+    print(
+        f"\nsphere-cloud fit, one cloud: compile+first {first_one:.1f} s, then {alone:.2f} s"
+        f"\nbatched ({len(radii)} clouds per call): compile+first {first_batch:.1f} s, then "
+        f"{per_batch:.2f} s: {batched:.2f} clouds/s"
+    )
+    if run is not None:
+        speed = run.table(
+            "speed", ["fit", "compile + first call (s)", "then (s)", "clouds/s"], "lrrr"
+        )
+        speed.add(
+            "one cloud (`fit_spheres`)", f"{first_one:.0f}", f"{alone:.2f}", f"{1 / alone:.2f}"
+        )
+        speed.add(
+            f"{len(radii)} clouds per call (`fit_spheres_batch`)",
+            f"{first_batch:.0f}",
+            f"{per_batch:.2f}",
+            f"{batched:.2f}",
+        )
     goals.append(goal("sphere clouds per second, batched (CPU)", batched, 100.0, fmt=".1f"))
 
-    print(f"\nsegment-length error (mm) without correspondences, {clouds} clouds per cell:")
-    print(f"  {'noise':>6}{'outliers':>10}{'mean':>8}{'max':>8}{'converged':>11}")
-    for noise in NOISE_MM:
-        for frac in OUTLIERS:
-            c, r, L = make_clouds(db, body, 1, clouds, noise / 1000, frac)
-            fit = db.fit_spheres_batch(body, c, r, chunk_size=clouds, progress=False)
-            err = length_errors(fit, L) * 1000
-            ok = np.mean(np.asarray(fit.status) == db.FitStatus.CONVERGED)
-            print(f"  {noise:>4} mm{frac:>9.0%}{err.mean():8.2f}{err.max():8.2f}{ok:11.0%}")
-            if noise == 5 and frac == 0.1:
-                goals.append(
-                    goal(
-                        "segment-length error, 5 mm noise, 10 % outliers (mean)",
-                        float(err.mean()),
-                        2.0,
-                        fmt=".2f",
-                        unit=" mm",
-                        op="<",
-                    )
+    # --- accuracy against noise and outliers.
+    cells = [GOAL_CELL] if quick else [(a, b) for a in NOISE_MM for b in OUTLIERS]
+    print(
+        f"\nsegment-length error (mm) without correspondences, spread {SPREAD}, turned any "
+        f"way, {n} clouds per cell ({clouds} x {seeds} seeds); landed: mean error < "
+        f"{LANDED * 1000:g} mm"
+    )
+    print(f"  {'noise':>6}{'outliers':>10}{'mean':>8}{'max':>8}{'landed':>16}{'converged':>11}")
+    if run is not None:
+        accuracy = run.table(
+            "accuracy",
+            ["noise (mm)", "outliers", "mean (mm)", "max (mm)", "landed", "converged"],
+            "rrrrrr",
+        )
+    for noise, frac in cells:
+        fit, L, _ = fit_cell(noise, frac)
+        err = length_errors(fit, L) * 1000
+        landed = int(np.sum(err.mean(axis=1) < LANDED * 1000))
+        ok = np.mean(np.asarray(fit.status) == db.FitStatus.CONVERGED)
+        goal_cell = (noise, frac) == GOAL_CELL
+        mean = f"{err.mean():.2f}"
+        print(
+            f"  {noise:>4} mm{frac:>9.0%}{mean:>8}{err.max():8.1f}{_landed(landed, n):>16}"
+            f"{ok:11.0%}"
+        )
+        if run is not None:
+            accuracy.add(
+                noise,
+                f"{frac:.0%}",
+                f"**{mean}**" if goal_cell else mean,
+                f"{err.max():.1f}",
+                _landed(landed, n),
+                f"{ok:.0%}",
+            )
+        if goal_cell:
+            goals.append(
+                goal(
+                    f"segment-length error, {noise} mm noise, {frac:.0%} outliers, spread "
+                    f"{SPREAD}, turned any way (mean of {n} clouds)",
+                    float(err.mean()),
+                    2.0,
+                    fmt=".2f",
+                    unit=" mm",
+                    op="<",
                 )
-    del batch
+            )
 
-    print("\nclouds fitted (mean segment-length error < 2 mm), exact clouds, by posture spread:")
-    for spread in (0.15, 0.3):
-        c, r, L = make_clouds(db, body, 2, clouds, 0.0, 0.0, spread=spread)
-        fit = db.fit_spheres_batch(body, c, r, chunk_size=clouds, progress=False)
-        landed = np.mean(length_errors(fit, L).mean(axis=1) < 0.002)
-        print(f"  spread {spread}: {landed:.0%}")
+    # --- landing against posture spread, exact clouds.
+    spreads = (SPREAD,) if quick else SPREADS
+    wrist_head = "wrist moved (cm), median / 90 %"
+    turned_head = f"turned by at most ±{TURN_BEFORE} rad"
+    print(
+        f"\nexact clouds landed (mean segment-length error < {LANDED * 1000:g} mm), {n} per "
+        "row; the wrists' distance from the standard position, posture alone:"
+    )
+    print(f"  {'spread':>6}{wrist_head:>34}{'turned any way':>18}{turned_head:>30}")
+    if run is not None:
+        landing = run.table(
+            "landing", ["posture spread", wrist_head, "turned any way", turned_head], "rrrr"
+        )
+    for spread in spreads:
+        row = []
+        for turn in (TURN, TURN_BEFORE):
+            fit, L, wrist = fit_cell(0, 0.0, spread, turn)
+            row.append(_landed(int(np.sum(length_errors(fit, L).mean(axis=1) < LANDED)), n))
+            if turn == TURN:
+                median, p90 = np.percentile(wrist * 100, (50, 90))
+                moved = f"{median:.0f} / {p90:.0f}"
+        print(f"  {spread:>6}{moved:>34}{row[0]:>18}{row[1]:>30}")
+        if run is not None:
+            landing.add(spread, moved, *row)
     return {"goals": goals}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--clouds", type=int, default=8, help="clouds per condition")
+    parser.add_argument("--clouds", type=int, default=None, help="clouds per seed (default 8)")
+    parser.add_argument("--seeds", type=int, default=4, help="seeds per cell (default 4)")
     parser.add_argument("--x64", action="store_true", help="float64 (default float32)")
+    results.add_arguments(parser)
     args = parser.parse_args()
+    clouds = args.clouds or (2 if args.quick else 8)
     select_device("cpu", x64=args.x64)
+    seeds = 1 if args.quick else args.seeds
+    run = start_run(
+        "sphere_cloud",
+        args,
+        body="male50, every scale group's axial and radial factor exp(N(0, 0.05^2))",
+        posture_spread=SPREAD,
+        turn="any (+-pi rad)",
+        landing_spreads=list((SPREAD,) if args.quick else SPREADS),
+        landing_turns=["+-pi rad", f"+-{TURN_BEFORE} rad"],
+        clouds_per_cell=clouds * seeds,
+        seeds=list(range(1, seeds + 1)),
+        speed_seed=SEED_SPEED,
+        landed=f"mean segment-length error < {LANDED * 1000:g} mm",
+        start="the standard position moved onto the cloud, no correspondences",
+        dtype="float64" if args.x64 else "float32",
+        device="cpu",
+    )
     print(machine())
     print(versions(["jax", "jaxlib", "optimistix", "equinox", "numpy"]))
-    print_goals(sphere_cloud_figures(args.clouds)["goals"], "sphere-cloud goals")
+    goals = sphere_cloud_figures(clouds, args.seeds, args.quick, run)["goals"]
+    print_goals(goals, "sphere-cloud goals")
+    run.add_goals(goals)
+    run.write(results.out_dir(args.out, args.quick))
 
 
 if __name__ == "__main__":
