@@ -9,6 +9,7 @@ static fit and one motion fit shape are compiled for the whole module."""
 
 import warnings
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -21,6 +22,7 @@ from diffbody._descriptors import descriptors, unwrap_directions
 from diffbody._rotations import exp_rotvec
 from diffbody.anthropometry._scale_to import LENGTHS, linear_model_jit
 from diffbody.anthropometry._scaling import N_GROUPS, SCALE_GROUPS, per_segment
+from diffbody.files._data_files import data_file
 from diffbody.fitting._marker_layout import mocap_layout, rigid_fit, rotation_vector
 from diffbody.fitting._marker_points import _walk_markers, tree_markers
 from diffbody.fitting._marker_trial import MarkerTrial
@@ -222,6 +224,61 @@ def test_weights_select_markers(motion, subject, static_fit):
     np.testing.assert_allclose(fit.errors[:, 0], 0.05, rtol=1e-4)
 
 
+# --- the shipped trials, as a user runs them -----------------------------------------------
+@pytest.fixture(scope="module")
+def shipped():
+    """The README's workflow on the shipped OpenSim example (data/mocap), with the default
+    population prior and in JAX's default float32, as a user runs it: the static fit and
+    the whole walk. Returns the static fit, the motion fit and the scaled body's
+    `PRIOR_MEASUREMENTS`."""
+    with jax.enable_x64(False):
+        body = db.load_body(variant="male50")
+        static = db.read_trc(data_file("mocap/subject01_static.trc"))
+        walk = db.read_trc(data_file("mocap/subject01_walk1.trc"))
+        fit = db.scale_and_register(body, static, db.load_markerset("opensim-gait", body))
+        motion = db.fit_motion(fit.body, fit.markerset.select(walk.names), walk, start=fit.pose)
+        measured = db.measurements(fit.body, PRIOR_MEASUREMENTS)
+    return fit, motion, measured
+
+
+def test_default_static_fit_on_the_shipped_trial(shipped):
+    """Scaling and registration under the ANSUR II prior: converged (float32); the
+    registered markers within 15 mm RMS of the averaged static trial (12.4 mm; the largest,
+    the sternum's, 56 mm); every axial factor between 0.8 and 1.3 (without the prior the
+    thorax, which no marker spans, shrinks to 0.03); the stature within 1.5 cm of the
+    subject's 1.803 m (OpenSim's scale setup, data/mocap/README.md), and each measurement
+    the factors decide within 3 standard deviations of the male population's given the
+    others."""
+    fit, _, measured = shipped
+    assert int(fit.status) == FitStatus.CONVERGED and fit.body.lengths.dtype == jnp.float32
+    errors = np.asarray(fit.errors)
+    assert np.all(np.isfinite(errors)) and np.sqrt(np.mean(errors**2)) < 0.015
+    assert errors.max() < 0.07
+    axial = np.asarray(fit.axial)
+    assert np.all((axial > 0.8) & (axial < 1.3)), dict(zip(SCALE_GROUPS, axial.round(3)))
+    assert abs(measured["stature"] - 1.803) < 0.015
+    assert db.PopulationPrior.ansur2("male").outliers(measured, 3.0) == []
+
+
+def test_default_motion_fit_on_the_shipped_walk(shipped):
+    """Every frame of the walk (151, 41 markers) from the default static fit: converged;
+    per-frame marker RMS 19.7 mm on average and 24.8 mm at worst (bounds 21 and 26 mm: the
+    arms' markers, registered in the static trial's T-pose, sit 3-5 cm off while walking,
+    README), the largest error under 8 cm; the pelvis and leg markers within 2 cm RMS
+    each."""
+    fit, motion, _ = shipped
+    assert motion.status.shape == (151,) and np.all(motion.status == FitStatus.CONVERGED)
+    assert np.mean(motion.rms) < 0.021 and np.max(motion.rms) < 0.026
+    assert np.max(motion.max) < 0.08
+    names = fit.body.segment_names
+    lower = ("pelvis", "thigh", "shank", "foot")
+    per = motion.per_marker()
+    for name in motion.names:
+        segment = names[fit.markerset.segments[fit.markerset.index(name)]]
+        if segment.endswith(lower):
+            assert per[name][0] < 0.02, (name, segment, per[name])
+
+
 # --- bad input ------------------------------------------------------------------------------
 def test_bad_input(static_fit, subject, male50, gait):
     ms = static_fit.markerset
@@ -276,6 +333,7 @@ def kernel(male50, gait):
         "jacfwd": jax.jit(jax.jacfwd(fast, argnums)),
         "jacrev": jax.jit(jax.jacrev(fast, argnums)),
         "args": (problem, lengths, offsets, x),
+        "init": pose,
     }
 
 
@@ -299,7 +357,7 @@ def test_kernel_derivatives(kernel):
 
 def test_kernel_equals_autodiff_through_the_walk(kernel):
     """The closed form against plain forward-mode autodiff through the walk (the kernel's
-    fallback) along a random direction, and the kernel's value against the walk's."""
+    fallback) along a random direction."""
     problem, *args = kernel["args"]
     rng = np.random.default_rng(1)
     v = tuple(jnp.asarray(rng.standard_normal(np.shape(a))) for a in args)
@@ -307,11 +365,33 @@ def test_kernel_equals_autodiff_through_the_walk(kernel):
     def plain(lengths, offsets, x):
         return _walk_markers(problem, kernel["lay"], lengths, offsets, x)[0]
 
-    value, tangent = jax.jvp(plain, tuple(args), v)
+    _, tangent = jax.jvp(plain, tuple(args), v)
     J_fwd = kernel["jacfwd"](problem, *args)
     directional = sum(np.tensordot(J, d, axes=d.ndim) for J, d in zip(J_fwd, v))
     np.testing.assert_allclose(directional, tangent, atol=1e-12)
-    np.testing.assert_allclose(kernel["fast"](problem, *args), value, atol=1e-15)
+
+
+def test_kernel_places_the_markers_on_forward_frames(kernel, male50, gait):
+    """Reference for the kernel's value: `db.forward` of the body with the kernel's lengths
+    in the posture of x, each marker placed by hand on its segment (seed 000): its proximal
+    joint plus the untwisted world frame applied to the offset turned about Z by the share
+    clip(z / length, 0, 1) of the segment's twist, the twist read off forward's twisted
+    frame. Random lengths (+0-10 %), offsets and a posture with twists: to rounding."""
+    problem, lengths, offsets, x = kernel["args"]
+    body = eqx.tree_at(lambda b: b.lengths, male50, lengths)
+    fk = db.forward(body, problem.pose(x, kernel["init"]))
+    seg = np.asarray(gait.segments)
+    R_base = np.asarray(fk.R_world_base)[seg]
+    R_base_twisted = np.einsum("kji,kjl->kil", R_base, np.asarray(fk.R_world_twisted)[seg])
+    tau = np.arctan2(R_base_twisted[:, 1, 0], R_base_twisted[:, 0, 0])
+    o = np.asarray(offsets)
+    turn = tau * np.clip(o[:, 2] / np.asarray(lengths)[seg], 0.0, 1.0)
+    c, s = np.cos(turn), np.sin(turn)
+    turned = np.stack([c * o[:, 0] - s * o[:, 1], s * o[:, 0] + c * o[:, 1], o[:, 2]], -1)
+    proximal = np.asarray(fk.joint_positions)[np.asarray(male50.proximal_joint)[seg]]
+    expected = proximal + np.einsum("kij,kj->ki", R_base, turned)
+    assert np.abs(tau).max() > 0.1  # the twists take part
+    np.testing.assert_allclose(kernel["fast"](problem, lengths, offsets, x), expected, atol=1e-12)
 
 
 def test_kernel_gradients_are_finite_at_the_standard_position(kernel, male50, gait):

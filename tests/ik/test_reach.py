@@ -88,19 +88,51 @@ def test_implicit_gradient_of_the_reach_with_respect_to_the_target(male50, palm0
     assert np.all(np.isfinite(J_far))
 
 
-def test_solve_reach_traces_under_jit_with_a_closed_over_body(male50):
+def test_solve_reach_traces_under_jit_with_a_closed_over_body(male50, palm0):
     """Regression: the effectors' indices were arrays, traced under jax.jit, and the phases'
-    layouts (static structure) could not be read off them."""
-    import jax
+    layouts (static structure) could not be read off them. Under jit the solve runs its
+    starts side by side and reaches the target; a target that is not finite cannot be
+    refused there (its value is unknown when traced): it takes no part, INVALID_TARGET
+    (README, "Errors")."""
 
-    def residuals(t):
-        targets = [db.Target.position("left_hand.palm", t)]
-        return db.solve_reach(male50, targets, segments=ARM, starts=1).residuals
+    @jax.jit
+    def reach(t):
+        out = db.solve_reach(male50, [db.Target.position("left_hand.palm", t)], **ARM_ONLY)
+        palm = db.forward(male50, out.pose).feature_points[male50.feature_index("left_hand.palm")]
+        return out, palm
 
-    assert jax.eval_shape(residuals, jnp.zeros(3)).shape == (1,)
+    target = palm0 + np.asarray([0.25, 0.1, 0.35])
+    out, palm = reach(jnp.asarray(target))
+    assert int(out.status) == db.ReachStatus.SUCCESS
+    assert bool(out.reached[0]) and bool(out.valid[0]) and float(out.residuals[0]) < 1e-3
+    np.testing.assert_allclose(np.linalg.norm(palm - target), out.residuals[0], atol=1e-12)
+    _check_limits(male50, out.pose)
+    out, _ = reach(jnp.asarray([np.nan, 0.2, 1.0]))  # the same compiled solve
+    assert int(out.status) == db.ReachStatus.INVALID_TARGET
+    assert not bool(out.valid[0]) and not bool(out.reached[0]) and float(out.residuals[0]) == 0
+    assert np.all(np.isfinite(np.asarray(out.pose.angles)))
+
+
+def test_a_non_finite_batch_row_is_an_invalid_target(male50):
+    """`solve_reach_batch` flags a row with a NaN or infinite coordinate instead of raising
+    (README, "Errors"): valid and reached False, residual 0, status INVALID_TARGET; the rows
+    around it are solved. (The batch shape of tests/ik/test_batch.py: one compiled solve.)"""
+    from diffbody.ik._reach_batch import solve_reach_batch
+
+    rows = np.array([[0.3, 0.2, 1.0], [0.3, np.inf, 1.0], [0.15, 0.3, 0.85]])
+    out = solve_reach_batch(
+        male50, ["left_hand.palm"], rows, chunk_size=2, progress=False, **ARM_ONLY
+    )
+    success, invalid = db.ReachStatus.SUCCESS, db.ReachStatus.INVALID_TARGET
+    np.testing.assert_array_equal(out.status, [success, invalid, success])
+    np.testing.assert_array_equal(out.valid[:, 0], [True, False, True])
+    np.testing.assert_array_equal(out.reached[:, 0], [True, False, True])
+    assert out.residuals[1, 0] == 0 and np.all(out.residuals[[0, 2], 0] < 1e-3)
+    assert np.all(np.isfinite(out.pose.angles))
 
 
 ARM = ("left_upper_arm", "left_forearm", "left_hand")
+ARM_ONLY = dict(segments=ARM, starts=1)
 TIGHT = dict(tol_position=1e-10, tol_angle=1e-10)
 
 

@@ -119,7 +119,9 @@ def test_robust_loss_resists_wrong_detections(tree, noisy_walk):
 
 
 def test_refinement_failure_is_a_status(tree, noisy_walk):
-    """A start far off (every part 5 m long) ends as a status with finite numbers."""
+    """A start far off (every part 5 m long) with too few steps to settle (2; it takes 37):
+    NOT_CONVERGED, the last iterate (moved off the start, not returned as a failure), every
+    number finite."""
     seq, _ = noisy_walk
     from diffbody.images._lifting import refine
 
@@ -127,10 +129,11 @@ def test_refinement_failure_is_a_status(tree, noisy_walk):
     out = refine(
         tree, seq.uv, seq.root_depth, F, start, np.full(tree.n_parts, 5.0), LiftOptions(max_steps=2)
     )
-    assert int(out.status) in (LiftStatus.CONVERGED, LiftStatus.NOT_CONVERGED, LiftStatus.FAILED)
+    assert int(out.status) == LiftStatus.NOT_CONVERGED and int(out.steps) == 2
     assert np.all(np.isfinite(np.asarray(out.joints))) and np.all(
         np.isfinite(np.asarray(out.lengths))
     )
+    assert np.all(np.asarray(out.lengths) < 5.0)  # the iterate, not the start
     with pytest.raises(ValueError, match="init_lengths must be finite numbers > 0"):
         refine(tree, seq.uv, seq.root_depth, F, start, np.zeros(tree.n_parts))
     with pytest.raises(ValueError, match="options.accel_sigma must be a finite number > 0"):
