@@ -114,6 +114,12 @@ def limits_tol(dtype=None) -> float:
     return LIMITS_EPS * float(jnp.finfo(dtype).eps)
 
 
+def ms(seconds: float) -> str:
+    """Milliseconds as a table shows them: three significant digits, whole numbers above 100."""
+    x = seconds * 1e3
+    return f"{x:,.0f}" if x >= 100 else f"{x:.3g}"
+
+
 def timed(fn, *args, **kwargs):
     """(fn's result, once ready; wall seconds)."""
     t0 = time.perf_counter()

@@ -39,6 +39,7 @@ from common import (
     goal,
     load_body,
     machine,
+    ms,
     not_measured,
     print_goals,
     select_device,
@@ -223,7 +224,7 @@ def main() -> None:
         for name, f in outputs.items():
             c, r = bench(jax.vmap(f), (pose,), repeats)
             print(f"{n:>9,} {name:>7} {c:>10.2f} {r * 1e3:>10.3f} {n / r:>12,.0f}")
-            table.add(f"{n:,}", name, f"{c:.1f}", f"{r * 1e3:.3g}", f"{n / r:,.0f}")
+            table.add(f"{n:,}", name, f"{c:.1f}", ms(r), f"{n / r:,.0f}")
 
     if args.skip_mujoco:
         row = not_measured(MUJOCO_FIGURE, f">= {GOAL_MUJOCO_RATIO:g}x", "--skip-mujoco")

@@ -65,12 +65,12 @@ def goals_table(goals: list[dict]) -> dict:
 
 def markdown(table: dict) -> str:
     sep = {"l": "---", "r": "---:"}
-    lines = [
-        "| " + " | ".join(table["columns"]) + " |",
-        "| " + " | ".join(sep[a] for a in table["align"]) + " |",
-    ]
-    lines += ["| " + " | ".join(row) + " |" for row in table["rows"]]
-    return "\n".join(lines)
+
+    def row(cells) -> str:  # a "|" inside a cell would end it
+        return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
+
+    lines = [row(table["columns"]), "| " + " | ".join(sep[a] for a in table["align"]) + " |"]
+    return "\n".join(lines + [row(r) for r in table["rows"]])
 
 
 def render_one(name: str, table: str, stale: bool | None = "git") -> str:

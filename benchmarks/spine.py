@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import results
-from common import bench, machine, start_run
+from common import bench, machine, ms, start_run
 
 
 def main() -> None:
@@ -49,7 +49,7 @@ def main() -> None:
         c, r = bench(jax.vmap(call), xs, args.repeats)
         reached = float(jnp.mean(jnp.all(jax.jit(jax.vmap(call))(*xs).reached, axis=-1)))
         print(f"{n:>8} {c:>10.2f} {r * 1e3:>10.3f} {n / r:>12,.0f} {reached:>8.1%}")
-        table.add(f"{n:,}", f"{c:.1f}", f"{r * 1e3:.3g}", f"{n / r:,.0f}", f"{reached:.1%}")
+        table.add(f"{n:,}", f"{c:.1f}", ms(r), f"{n / r:,.0f}", f"{reached:.1%}")
     run.write(results.out_dir(args.out, args.quick))
 
 

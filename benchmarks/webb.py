@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import results
-from common import bench, goal, machine, print_goals, start_run
+from common import bench, goal, machine, ms, print_goals, start_run
 
 NOISE = (0.0, 0.5, 1.0, 2.0)  # px
 FOCAL = 1000.0  # px
@@ -313,8 +313,8 @@ def main() -> None:
     speed = run.table(
         "speed", ["batch of 100-frame sequences", "compile (s)", "run (ms)", "sequences/s"], "lrrr"
     )
-    speed.add(f"Webb alone, {n}", f"{c1:.1f}", f"{r1 * 1e3:.3g}", f"{n / r1:,.0f}")
-    speed.add(f"whole pipeline, {n}", f"{c2:.1f}", f"{r2 * 1e3:.3g}", f"{n / r2:,.0f}")
+    speed.add(f"Webb alone, {n}", f"{c1:.1f}", ms(r1), f"{n / r1:,.0f}")
+    speed.add(f"whole pipeline, {n}", f"{c2:.1f}", ms(r2), f"{n / r2:,.0f}")
     no_anchor = run.table(
         "reflections", ["reflections by continuity, no frame known", "match"], "lr"
     )

@@ -92,4 +92,6 @@ def test_caption_says_what_a_reader_must_know():
     assert "changed since" not in caption(record, stale=False)
     table = {"columns": ["a", "b"], "align": "lr", "rows": [["x", "1"]]}
     assert markdown(table) == "| a | b |\n| --- | ---: |\n| x | 1 |"
+    piped = {"columns": ["|x|"], "align": "l", "rows": [["a | b"]]}
+    assert markdown(piped) == "| \\|x\\| |\n| --- |\n| a \\| b |"
     assert json.loads(json.dumps(table)) == table
