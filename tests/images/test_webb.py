@@ -2,7 +2,6 @@
 the seed's conditions hold, the order dependence when condition 3 fails, bad input, the
 observed skeleton, and the command line."""
 
-import argparse
 import json
 import math
 
@@ -13,7 +12,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from diffbody.cli._webb import add_webb_command
+from diffbody.cli import main
 from diffbody.files._body_file import data_file
 from diffbody.images._joint_tree import (
     JointTree,
@@ -317,17 +316,11 @@ def test_default_tree_and_file_round_trip(tree, male50, tmp_path):
 
 
 # --- the command line -------------------------------------------------------------------------
-def _parser():
-    parser = argparse.ArgumentParser(prog="diffbody")
-    add_webb_command(parser.add_subparsers(dest="command", required=True))
-    return parser
-
-
 def test_command_line(tmp_path, capsys):
     """The example sequence (60 frames of the walking body, 1 px noise): lengths JSON with
     every part, joints for every frame, reflections, and a picture."""
     out, png = tmp_path / "lengths.json", tmp_path / "skeleton.png"
-    args = _parser().parse_args(
+    code = main(
         [
             "webb",
             str(data_file("webb/example_points.csv")),
@@ -341,7 +334,7 @@ def test_command_line(tmp_path, capsys):
             str(png),
         ]
     )
-    assert args.run(args) == 0
+    assert code == 0
     doc = json.loads(out.read_text())
     tree = default_joint_tree()
     assert list(doc["lengths_m"]) == list(tree.part_names)
@@ -354,27 +347,27 @@ def test_command_line(tmp_path, capsys):
     assert "refinement:" in capsys.readouterr().out
 
 
-def test_command_line_bad_points(tmp_path):
+def test_command_line_bad_points(tmp_path, capsys):
+    """Through the command's entry point: each bad file is one line naming the file, the
+    row and the column, and exit status 2."""
     points = tmp_path / "p.csv"
     points.write_text("center_hip.u,center_hip.v\n1,2\n")
     depth = tmp_path / "d.csv"
     depth.write_text("3\n")
-    args = _parser().parse_args(
-        ["webb", str(points), "--focal", "1000", "--root-depth", str(depth)]
-    )
-    with pytest.raises(ValueError, match=r"p.csv: row 1: no column 'left_hip.u'"):
-        args.run(args)
+    argv = ["webb", str(points), "--focal", "1000", "--root-depth", str(depth)]
+
+    def error() -> str:
+        assert main(argv) == 2
+        return capsys.readouterr().err
+
+    assert "p.csv: row 1: no column 'left_hip.u'" in error()
     names = default_joint_tree().names
     header = ",".join(f"{n}.{c}" for n in names for c in "uv")
     row = ",".join(["1"] * 30)
     points.write_text(f"{header}\n{row}\n{row.replace('1', 'x', 1)}\n")
-    with pytest.raises(ValueError, match=r"p.csv: row 3, column 1: not a number: 'x'"):
-        args.run(args)
+    assert "p.csv: row 3, column 1: not a number: 'x'" in error()
     points.write_text(f"{header}\n{row}\n{row}\n{row}\n")
     depth.write_text("depth\n3\n0\n3\n")
-    with pytest.raises(
-        ValueError, match=r"d.csv: row 3, column 1: depth '0' must be a finite number > 0"
-    ):
-        args.run(args)
+    assert "d.csv: row 3, column 1: depth '0' must be a finite number > 0" in error()
     with pytest.raises(SystemExit):
-        _parser().parse_args(["webb", str(points), "--focal", "-5", "--root-depth", str(depth)])
+        main(["webb", str(points), "--focal", "-5", "--root-depth", str(depth)])
