@@ -142,14 +142,9 @@ def effector_chain(body, effectors: list[str]) -> list[str]:
     of gravity or a body re-rooted elsewhere); the whole body's placement never moves in a
     reach, so it is not among them."""
     from ..ik._targets import point_index
-    from ..ik._unknowns import path_to_top, point_segment
+    from ..ik._unknowns import path_to_top, segments_on_path
 
-    index = [point_index(body, e) for e in effectors]
-    cog = body.n_joints + len(body.feature_names)
-    if cog in index or body.root_joint != body.default_root_joint:
-        on = set(range(body.n_segments))
-    else:
-        on = {s for i in index for s in path_to_top(body, point_segment(body, i))}
+    on = segments_on_path(body, [point_index(body, e) for e in effectors])
     top_down = sorted(on - {0}, key=lambda s: (len(path_to_top(body, s)), s))
     return [body.segment_names[s] for s in top_down]
 

@@ -107,6 +107,23 @@ def path_to_top(body: Body, seg: int) -> list[int]:
     return path
 
 
+def moves_everything(body: Body, points: Iterable[int]) -> bool:
+    """Whether every segment moves the effectors `points`: the center of gravity is among
+    them, or the body hangs from a joint other than its default root."""
+    cog = body.n_joints + len(body.feature_names)
+    return cog in points or body.root_joint != body.default_root_joint
+
+
+def segments_on_path(body: Body, points: Iterable[int], axes: Iterable[int] = ()) -> set[int]:
+    """The segments whose joints move the effectors `points` (into [joints, features, center
+    of gravity]) or the axis segments `axes`: their paths to the top, or every segment."""
+    points = tuple(points)
+    if moves_everything(body, points):
+        return set(range(body.n_segments))
+    eff = [point_segment(body, i) for i in points] + list(axes)
+    return {s for e in eff for s in path_to_top(body, e)}
+
+
 def make_layout(
     body: Body,
     points: Iterable[int],
@@ -119,12 +136,9 @@ def make_layout(
     axis segments `axes`, with `movable` segments free within their ranges, the spine as its
     target when `spine`, the whole body's placement when `root`."""
     points, axes = tuple(int(i) for i in points), tuple(int(i) for i in axes)
-    cog = body.n_joints + len(body.feature_names)
-    full = cog in points or body.root_joint != body.default_root_joint
+    full = moves_everything(body, points)
+    on_path = segments_on_path(body, points, axes)
     eff = [point_segment(body, i) for i in points] + list(axes)
-    on_path = (
-        set(range(body.n_segments)) if full else {s for e in eff for s in path_to_top(body, e)}
-    )
     spine_segs = set(body.spine.segment_names) if (spine and body.spine is not None) else set()
     names = body.segment_names
     lo, hi = np.asarray(body.swing_lo), np.asarray(body.swing_hi)

@@ -6,23 +6,12 @@ import csv
 
 import numpy as np
 import pytest
+from command_line import ARM_BATCH, arm_batch, fails
 
 from diffbody.cli._batch import _read_targets
 from diffbody.cli._main import main
 
 REACH = ["reach", "--effector", "left_hand.palm", "--target", "0.3", "0.2", "1.0"]
-
-
-def _fails(argv, capsys) -> str:
-    """Run the command line; check that it exits 2 without a traceback; its stderr."""
-    try:
-        code = main(argv)
-    except SystemExit as e:  # argparse's usage errors
-        code = e.code
-    err = capsys.readouterr().err
-    assert code == 2, err
-    assert "Traceback" not in err
-    return err
 
 
 @pytest.mark.parametrize(
@@ -62,18 +51,18 @@ def test_bad_targets_csv(tmp_path, capsys, content, message):
     targets = tmp_path / "targets.csv"
     targets.write_bytes(content)
     argv = ["batch", str(targets), "--effector", "left_hand.palm"]
-    err = _fails(argv + ["--out", str(tmp_path / "r.csv")], capsys)
+    err = fails(argv + ["--out", str(tmp_path / "r.csv")], capsys)
     assert f"diffbody: error: {targets}: {message}" in err
 
 
 def test_targets_csv_is_a_folder(tmp_path, capsys):
-    err = _fails(["batch", str(tmp_path), "--effector", "left_hand.palm"], capsys)
+    err = fails(["batch", str(tmp_path), "--effector", "left_hand.palm"], capsys)
     assert f"{tmp_path}: is a directory" in err
 
 
 def test_targets_csv_missing(tmp_path, capsys):
     missing = tmp_path / "nope.csv"
-    err = _fails(["batch", str(missing), "--effector", "left_hand.palm"], capsys)
+    err = fails(["batch", str(missing), "--effector", "left_hand.palm"], capsys)
     assert str(missing) in err
 
 
@@ -81,7 +70,7 @@ def test_results_would_overwrite_the_targets(tmp_path, capsys):
     targets = tmp_path / "t.csv"
     targets.write_text("0.3,0.2,1.0\n")
     argv = ["batch", str(targets), "--effector", "left_hand.palm", "--out", str(targets)]
-    assert "is the targets file" in _fails(argv, capsys)
+    assert "is the targets file" in fails(argv, capsys)
     assert targets.read_text() == "0.3,0.2,1.0\n"
 
 
@@ -111,7 +100,7 @@ def test_a_good_targets_csv_parses(tmp_path):
     ],
 )
 def test_reach_bad_starts(capsys, extra, option):
-    err = _fails(REACH + extra, capsys)
+    err = fails(REACH + extra, capsys)
     assert f"argument {option}: must be a positive integer" in err
 
 
@@ -119,20 +108,20 @@ def test_reach_bad_starts(capsys, extra, option):
 def test_batch_bad_positive_ints(tmp_path, capsys, extra):
     targets = tmp_path / "t.csv"
     targets.write_text("0.3,0.2,1.0\n")
-    err = _fails(["batch", str(targets), "--effector", "left_hand.palm"] + extra, capsys)
+    err = fails(["batch", str(targets), "--effector", "left_hand.palm"] + extra, capsys)
     assert f"argument {extra[0]}: must be a positive integer" in err
 
 
 @pytest.mark.parametrize("value", ["nan", "inf", "Infinity", "1e999", "abc"])
 def test_reach_bad_target(capsys, value):
     argv = ["reach", "--effector", "left_hand.palm", "--target", "0.3", value, "1.0"]
-    err = _fails(argv, capsys)
+    err = fails(argv, capsys)
     assert "argument --target: must be a finite number" in err and repr(value) in err
 
 
 @pytest.mark.parametrize("value", ["bogus", "30", "30,x", "30,15,2", "nan,0"])
 def test_render_bad_view(tmp_path, capsys, value):
-    err = _fails(["render", "--out", str(tmp_path / "b.png"), "--view", value], capsys)
+    err = fails(["render", "--out", str(tmp_path / "b.png"), "--view", value], capsys)
     assert "argument --view: unknown view" in err
     assert all(name in err for name in ("front", "back", "perspective", "AZ,EL"))
 
@@ -155,7 +144,7 @@ def test_output_into_a_missing_folder(tmp_path, capsys, monkeypatch, kind, optio
         f"diffbody.cli._{kind}.body_from_args", lambda args: pytest.fail("loaded the body")
     )
     out = tmp_path / "missing" / "out.file"
-    err = _fails(_command(kind, tmp_path) + [option, str(out)], capsys)
+    err = fails(_command(kind, tmp_path) + [option, str(out)], capsys)
     assert f"{option} {out}: folder {out.parent} does not exist" in err
     assert not out.parent.exists()
 
@@ -168,14 +157,14 @@ def test_output_is_a_folder(tmp_path, capsys, monkeypatch, kind, option):
     monkeypatch.setattr(
         f"diffbody.cli._{kind}.body_from_args", lambda args: pytest.fail("loaded the body")
     )
-    err = _fails(_command(kind, tmp_path) + [option, str(tmp_path)], capsys)
+    err = fails(_command(kind, tmp_path) + [option, str(tmp_path)], capsys)
     assert f"{option} {tmp_path}: is a folder" in err
 
 
 def test_output_under_a_file(tmp_path, capsys):
     (tmp_path / "f").write_text("")
     out = tmp_path / "f" / "x.json"
-    err = _fails(REACH + ["--out", str(out)], capsys)
+    err = fails(REACH + ["--out", str(out)], capsys)
     assert f"--out {out}: {tmp_path / 'f'} is not a folder" in err
 
 
@@ -190,12 +179,12 @@ def test_output_under_a_file(tmp_path, capsys):
 def test_unknown_names(male50, monkeypatch, capsys, extra, message):
     monkeypatch.setattr("diffbody.cli._reach.body_from_args", lambda args: male50)  # loaded once
     argv = REACH + extra  # a second --effector replaces the first
-    err = _fails(argv, capsys)
+    err = fails(argv, capsys)
     assert message in err and "diffbody info --names" in err
 
 
 def test_unknown_variant(capsys):
-    err = _fails(["info", "--variant", "child5"], capsys)
+    err = fails(["info", "--variant", "child5"], capsys)
     assert "'child5'" in err and "male50" in err
 
 
@@ -206,7 +195,7 @@ def test_bad_body_file(tmp_path, capsys, kind):
         body.mkdir()
     elif kind == "not-utf8":
         body.write_bytes(b'{"name": "\xff"}')
-    err = _fails(["info", "--body", str(body)], capsys)
+    err = fails(["info", "--body", str(body)], capsys)
     assert str(body) in err
 
 
@@ -219,10 +208,7 @@ def test_a_missing_value_passes_through_as_an_invalid_row(tmp_path, capsys):
     xyz = _read_targets(str(targets), 1)
     finite = np.isfinite(xyz).all(axis=(1, 2))
     assert xyz.shape == (4, 1, 3) and finite.tolist() == [False, True, False, False]
-    # The arm from one start in chunks of 2: the compiled solve of tests/ik/test_batch.py.
-    argv = ["batch", str(targets), "--effector", "left_hand.palm", "--out", str(results)]
-    argv += ["--segments", "left_upper_arm", "left_forearm", "left_hand", "--starts", "1"]
-    assert main(argv + ["--chunk-size", "2"]) == 0
+    assert main(arm_batch(targets, results) + ARM_BATCH) == 0
     assert "1 of 4 rows reached" in capsys.readouterr().out
     with results.open(newline="") as f:
         rows = list(csv.DictReader(f))

@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 import pytest
+from command_line import ARM_BATCH, arm_batch
 
 from diffbody.cli._main import main
 
@@ -30,10 +31,7 @@ def test_reach_command(tmp_path, capsys):
 def test_batch_command(tmp_path, capsys):
     targets, results = tmp_path / "targets.csv", tmp_path / "results.csv"
     targets.write_text("x,y,z\n0.3,0.2,1.0\nnan,0.2,1.0\n0.15,0.3,0.85\n")
-    argv = ["batch", str(targets), "--effector", "left_hand.palm", "--out", str(results)]
-    # The arm from one start in chunks of 2: tests/ik/test_batch.py's compiled solve, reused.
-    argv += ["--segments", "left_upper_arm", "left_forearm", "left_hand", "--starts", "1"]
-    assert main(argv + ["--chunk-size", "2"]) == 0
+    assert main(arm_batch(targets, results) + ARM_BATCH) == 0
     assert "3/3 solves" in capsys.readouterr().err
     with results.open(newline="") as f:
         rows = list(csv.DictReader(f))

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from command_line import fails
 
 from diffbody.cli import main
 from diffbody.files._body_file import data_file
@@ -106,14 +107,8 @@ def _fails(argv, capsys, monkeypatch) -> str:
         "diffbody.images._reflections.choose_reflections",
         lambda *a, **k: pytest.fail("chose reflections"),
     )
-    try:
-        code = main(argv)
-    except SystemExit as e:  # argparse's usage errors
-        code = e.code
-    err = capsys.readouterr().err
-    assert code == 2, err
+    err = fails(argv, capsys)
     assert err.startswith("diffbody: error: ") or "usage:" in err
-    assert "Traceback" not in err
     return err
 
 
