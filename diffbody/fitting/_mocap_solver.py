@@ -14,9 +14,9 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array
 
+from .._solver import FitStatus
 from ..ik._problem import make_problem
 from ._marker_trial import MarkerTrial
-from ._sphere_fit import FitStatus
 
 MARKER_SD = 0.01  # m: a marker's rows are its error in units of this
 PULL = 1e-3  # per unit of a free variable: an unobserved direction weighs as 10 um of error

@@ -12,7 +12,6 @@ moves only the whole body, the second the posture too, the rest the dimensions a
 """
 
 import dataclasses
-import enum
 
 import equinox as eqx
 import jax
@@ -24,6 +23,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .._body import Body, Pose, without_names
 from .._progress import Progress
+from .._solver import FitStatus
 from ._clouds import check_correspondences, check_spheres
 from ._sphere_residuals import (
     FIT_NAMES,
@@ -70,14 +70,6 @@ LINEAR_SOLVER = lx.Normal(lx.Cholesky())
 
 
 _Arr = Array | np.ndarray  # NumPy arrays from fit_spheres_batch
-
-
-class FitStatus(enum.IntEnum):
-    """What a fit reports (`SphereFit.status`)."""
-
-    CONVERGED = 0  # the last stage met its tolerance, or moved nothing by 100x more
-    NOT_CONVERGED = 1  # the last stage ran out of steps: its last point is returned
-    FAILED = 2  # a value became non-finite: the start is returned
 
 
 class SphereFit(eqx.Module):

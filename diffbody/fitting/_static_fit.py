@@ -20,6 +20,7 @@ import optimistix as optx
 from jaxtyping import Array, Float, Int
 
 from .._body import Body, Pose, without_names
+from .._solver import FitStatus
 from ..anthropometry._prior import PopulationPrior
 from ..anthropometry._scale_to import LENGTHS, linear_model_jit
 from ..anthropometry._scaling import N_GROUPS, per_segment
@@ -37,7 +38,6 @@ from ._mocap_solver import (
     masked_targets,
     solver,
 )
-from ._sphere_fit import FitStatus
 from ._sphere_residuals import scaled
 
 FIT_CHOICES = ("lengths", "radii", "offsets")
