@@ -1,10 +1,13 @@
 """What every benchmark prints and how it times: machine and versions, compile time apart
-from the median run time, and the goals table (each figure beside its goal, met or not)."""
+from the median run time, compiles from cold in a fresh process, and the goals table (each
+figure beside its goal, met or not)."""
 
 import importlib.metadata
+import json
 import os
 import platform
 import statistics
+import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -21,6 +24,10 @@ TOL_POSITION = 1e-3  # m: what counts as reached
 # The default tolerance of `diffbody.within_limits`.
 LIMITS_EPS = 256
 SUCCESS_FOR_SPEED = 0.999  # a speed figure counts only at this success rate
+# s: every public entry point's compile from cold (reach, batch, mocap, cloud fit, lifting),
+# the first call minus a second identical one in a fresh process (`fresh_process`).
+GOAL_COLD_COMPILE_S = 5.0
+BENCHMARKS = os.path.dirname(os.path.abspath(__file__))
 
 
 def select_device(device: str, x64: bool = False, precision: str = "default") -> None:
@@ -127,6 +134,44 @@ def timed(fn, *args, **kwargs):
     return out, time.perf_counter() - t0
 
 
+def first_and_second(fn) -> tuple[object, float, float]:
+    """(fn()'s result, seconds of the first call, seconds of a second identical call): their
+    difference is what the first call spent tracing and compiling."""
+    out, first_s = timed(fn)
+    _, second_s = timed(fn)
+    return out, first_s, second_s
+
+
+def fresh_process(code: str, device: str, x64: bool = False) -> dict | None:
+    """Run Python `code` in a fresh process, JAX on `device` (`select_device`) with its
+    persistent compilation cache off, so that every compile starts from nothing; the JSON
+    object its last output line holds (`print_first_and_second`), or None when it failed
+    (its output printed)."""
+    prologue = (
+        f"import sys\nsys.path.insert(0, {BENCHMARKS!r})\nfrom common import select_device\n"
+        f"select_device({device!r}, x64={x64!r})\n"
+    )
+    env = child_env(device)
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    env["JAX_ENABLE_COMPILATION_CACHE"] = "false"
+    proc = subprocess.run(
+        [sys.executable, "-c", prologue + code], env=env, capture_output=True, text=True
+    )
+    try:
+        return json.loads(proc.stdout.strip().splitlines()[-1])
+    except (IndexError, json.JSONDecodeError):
+        output = (proc.stdout + proc.stderr)[-3000:]
+        print(f"  the fresh process failed (exit status {proc.returncode}):\n{output}")
+        return None
+
+
+def print_first_and_second(fn, **extra) -> None:
+    """In a fresh process: time fn's first call and a second identical one, and print
+    {"first_s", "second_s", **extra} as one JSON line (what `fresh_process` returns)."""
+    _, first_s, second_s = first_and_second(fn)
+    print(json.dumps({"first_s": first_s, "second_s": second_s, **extra}))
+
+
 def bench(fn, args, repeats: int) -> tuple[float, float]:
     """(compile seconds, median run seconds) of jit(fn) on args, after one warm-up run."""
     t0 = time.perf_counter()
@@ -174,6 +219,28 @@ def goal(
 
 def not_measured(figure: str, goal_text: str, why: str) -> Goal:
     return Goal(figure, f"({why})", goal_text, None)
+
+
+def cold_compile_goal(
+    entry: str, child: dict | None, why: str = "", success: float | None = None
+) -> Goal:
+    """The Goal of `entry`'s compile from cold: `child` is what `fresh_process` returned
+    (None: it failed), its first call minus its second < GOAL_COLD_COMPILE_S; `why` says why
+    it was not measured (--quick, ...); `success` as for `goal`."""
+    figure = f"{entry}: compile from cold (fresh process, no compilation cache)"
+    limit = f"< {GOAL_COLD_COMPILE_S:.2f} s"
+    if why:
+        return not_measured(figure, limit, why)
+    if child is None:
+        return Goal(figure, "failed", limit, False)
+    compile_s = child["first_s"] - child["second_s"]
+    print(
+        f"  {entry} from cold: first call {child['first_s']:.2f} s, second "
+        f"{child['second_s']:.3f} s -> compile {compile_s:.2f} s"
+    )
+    return goal(
+        figure, compile_s, GOAL_COLD_COMPILE_S, fmt=".2f", unit=" s", op="<", success=success
+    )
 
 
 def print_goals(goals: list[Goal], title: str) -> None:

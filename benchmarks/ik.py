@@ -17,21 +17,23 @@ only at >= 99.9 % success, and its success rate is printed beside it.
 
 The figures (goals for a 2-core CPU, float32, the default body `diffbody.load_body()`):
 
-1. CLI: the README command `diffbody reach --effector left_hand.palm --target 0.35 0.3 1.1
-   --out reach.json --png reach.png`, end-to-end wall time of the subprocess with an empty
-   compilation cache (a fresh `JAX_COMPILATION_CACHE_DIR`), < 10 s; then again with the
-   cache it filled, < 3 s. (`--skip-cli`)
+1. CLI: the README command as written, `diffbody reach --effector left_hand.palm --target
+   0.35 0.3 1.1 --out reach.json --png reach.png`, end-to-end wall time of the subprocess
+   with an empty compilation cache (a fresh `JAX_COMPILATION_CACHE_DIR`), < 3 s; then again
+   with the cache it filled, < 1 s. (`--skip-cli`)
 2. `solve_reach` on the whole body (default unknowns: root to palm, the spine as its
-   Bendspine target, root fixed), one palm target: the first call (trace, compile, solve),
-   timed inside a fresh subprocess with no compilation cache, < 5 s.
-3. The same, warm: median wall time over `--repeats` calls on other targets (same shapes,
-   Python-side work included), < 2 ms.
+   Bendspine target, root fixed), one palm target, in a fresh process with JAX's persistent
+   compilation cache off (`common.fresh_process`): the first call (trace, compile, solve)
+   < 3 s; its compile from cold, the first call minus a second identical one, < 5 s.
+3. The same, warm (in this process): median wall time over `--repeats` calls on other
+   targets (same shapes, Python-side work included), < 1 ms.
 4. `solve_reach_batch` on the left arm (segments upper arm, forearm, hand), `--n` targets:
-   compile time = first call - a second identical call (the run time), < 5 s; success
-   >= 99.9 %; solves/s over pytorch_kinematics' on the same targets in the same run, >= 10x
-   (`--skip-peers`; IKPy is run on the first `--n-ikpy` targets for reference).
-5. `solve_reach_batch` on the whole body (default unknowns), `--n-body` targets: solves/s of
-   the second call, >= 5,000.
+   compile from cold (a fresh process as in 2, first call - second), < 5 s; success
+   >= 99.9 %; solves/s (the second call in this process) over pytorch_kinematics' on the
+   same targets in the same run, >= 10x (`--skip-peers`; IKPy is run on the first
+   `--n-ikpy` targets for reference).
+5. `solve_reach_batch` on the whole body (default unknowns), `--n-body` targets: compile
+   from cold as in 4, < 5 s; solves/s of the second call in this process, >= 5,000.
 6. Posture on arm-reachable targets (those of 3 and 5): the largest change of the spine
    target from the initial posture's spine (`spine_angles(body, body.spine,
    body.rest_pose()).sum(0)`) per component, and the largest swing change (`swing_vector`)
@@ -43,10 +45,10 @@ The figures (goals for a 2-core CPU, float32, the default body `diffbody.load_bo
 
 `--device gpu` runs diffbody on JAX's default backend (a GPU) with an arm batch of 100,000
 and a whole-body batch of 4,096, each in one chunk, and pytorch_kinematics on torch's CUDA
-device; its goals: arm >= 1,000,000 solves/s and >= 5x pytorch_kinematics, whole body >=
-100,000 solves/s (the other goals as on the CPU). `--quick` takes small batches and few
-repeats, and runs no peer, command line, fresh process or MuJoCo: a smoke run whose figures are not
-the goals' sizes. On a GPU, JAX's default
+device; its goals: arm >= 2,000,000 solves/s and >= 10x pytorch_kinematics on the same GPU,
+whole body >= 200,000 solves/s (the other goals as on the CPU). `--quick` takes small
+batches and few repeats, and runs no peer, command line, fresh process or MuJoCo: a smoke
+run whose figures are not the goals' sizes. On a GPU, JAX's default
 matmul precision rounds float32 products to TF32 (about 3 decimal digits), in the solver as
 everywhere; `--matmul-precision highest` runs everything at full float32 precision.
 
@@ -74,6 +76,9 @@ from common import (
     TOL_POSITION,
     Goal,
     child_env,
+    cold_compile_goal,
+    first_and_second,
+    fresh_process,
     goal,
     limits_tol,
     load_body,
@@ -91,15 +96,15 @@ ARM_AND_CLAVICLE = ARM_SEGMENTS + ("left_clavicle",)
 EFFECTOR = "left_hand.palm"
 CLI_TARGET = (0.35, 0.3, 1.1)
 
-GOAL_CLI_COLD_S = 10.0
-GOAL_CLI_WARM_S = 3.0
-GOAL_FIRST_CALL_S = 5.0
-GOAL_WARM_S = 2e-3
-GOAL_ARM_COMPILE_S = 5.0
+GOAL_CLI_COLD_S = 3.0
+GOAL_CLI_WARM_S = 1.0
+GOAL_FIRST_CALL_S = 3.0
+GOAL_WARM_S = 1e-3
 GOAL_ARM_SUCCESS = 0.999
-GOAL_PEER_RATIO = {"cpu": 10.0, "gpu": 5.0}
-GOAL_BODY_SOLVES_PER_S = {"cpu": 5_000, "gpu": 100_000}
-GOAL_ARM_SOLVES_PER_S_GPU = 1_000_000
+GOAL_PEER_RATIO = {"cpu": 10.0, "gpu": 10.0}
+GOAL_BODY_SOLVES_PER_S = {"cpu": 5_000, "gpu": 200_000}
+GOAL_ARM_SOLVES_PER_S_GPU = 2_000_000
+SEEDS = {"arm": 0, "single": 1, "body": 2}  # of the targets (`palm_targets`)
 GOAL_POSTURE_DEG = 2.0
 
 
@@ -229,42 +234,49 @@ def _run(command: list[str], env: dict[str, str]):
     return time.perf_counter() - t0, proc
 
 
-# --- 2. the first call in a fresh process ------------------------------------------------------
-def first_call_child(xyz: list[float]) -> None:
-    """In a fresh process: time the first whole-body `solve_reach` (trace, compile, solve),
-    then print it with its answer's check as one JSON line."""
+# --- 2, 4, 5. compiles from cold ----------------------------------------------------------------
+def palm_targets(body, count: int, seed: int) -> np.ndarray:
+    """(count, 3) palm targets of random in-limit left-arm poses (module docstring)."""
+    import peers
+
+    rng = np.random.default_rng(seed)
+    return peers.palm_positions(body, peers.arm_poses(body, count, rng))
+
+
+def cold_child(kind: str, given: list, chunk_size: int | None) -> None:
+    """In a fresh process (`common.fresh_process`): the first call of one entry point and a
+    second identical one, printed with the answers' check as one JSON line. `kind` "reach":
+    `solve_reach` on the whole body, `given` the target (x, y, z); "arm" or "body":
+    `solve_reach_batch` on the left arm or the whole body, `given` (count, seed) of
+    `palm_targets`."""
     import diffbody as db
 
     body = load_body()
-    out, seconds = timed(db.solve_reach, body, [db.Target.position(EFFECTOR, np.asarray(xyz))])
-    solved = checked(body, out, np.asarray(xyz))
-    line = dict(
-        first_call_s=seconds,
-        error=float(solved.errors[0]),
-        violation=float(solved.violations[0]),
-        reported=float(solved.reported[0]),
-        tol_limits=solved.tol_limits,
-    )
+    if kind == "reach":
+        targets = np.asarray(given)
+        out, first_s, second_s = first_and_second(
+            lambda: db.solve_reach(body, [db.Target.position(EFFECTOR, targets)])
+        )
+        solved = checked(body, out, targets)
+    else:
+        segments = {"segments": ARM_SEGMENTS} if kind == "arm" else {}
+        done = batch(body, palm_targets(body, *given), chunk_size, **segments)
+        first_s, second_s, solved = done.first_s, done.run_s, done.solved
+    line = dict(first_s=first_s, second_s=second_s, tol_limits=solved.tol_limits)
+    for key in ("errors", "violations", "reported"):
+        line[key] = getattr(solved, key).tolist()
     print(json.dumps(line))
 
 
-def first_call(device: str, x64: bool, xyz: np.ndarray) -> tuple[float, Solved | None, str]:
-    """(first call seconds, its answer checked, the child's output) from a fresh process
-    with JAX's persistent compilation cache off."""
-    command = [sys.executable, str(Path(__file__).resolve()), "--device", device]
-    command += ["--first-call-child", *(repr(float(x)) for x in xyz)] + (["--x64"] if x64 else [])
-    env = child_env(device)
-    env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    env["JAX_ENABLE_COMPILATION_CACHE"] = "false"
-    _, proc = _run(command, env)
-    try:
-        line = json.loads(proc.stdout.strip().splitlines()[-1])
-    except (IndexError, json.JSONDecodeError):
-        return float("nan"), None, proc.stdout + proc.stderr
-    solved = Solved(
-        *(np.array([line[k]]) for k in ("error", "violation", "reported")), line["tol_limits"]
-    )
-    return line["first_call_s"], solved, proc.stdout
+def cold(args, kind: str, given, chunk_size: int | None) -> tuple[dict | None, Solved | None]:
+    """(`cold_child`'s line, its answers checked) from a fresh process; (None, None) when it
+    failed."""
+    code = f"from ik import cold_child\ncold_child({kind!r}, {given!r}, {chunk_size!r})"
+    line = fresh_process(code, args.device, args.x64)
+    if line is None:
+        return None, None
+    parts = (np.asarray(line[k], np.float64) for k in ("errors", "violations", "reported"))
+    return line, Solved(*parts, line["tol_limits"])
 
 
 # --- 4, 5. batches ---------------------------------------------------------------------------
@@ -299,8 +311,7 @@ def batch(body, targets: np.ndarray, chunk_size: int | None, **kwargs) -> Batch:
             **kwargs,
         )
 
-    _, first_s = timed(solve)
-    out, run_s = timed(solve)
+    out, first_s, run_s = first_and_second(solve)
     return Batch(first_s, run_s, checked(body, out, targets), out)
 
 
@@ -374,13 +385,9 @@ def main() -> None:
     parser.add_argument("--skip-peers", action="store_true", help="no IKPy, pytorch_kinematics")
     parser.add_argument("--skip-cli", action="store_true", help="no command-line timings")
     parser.add_argument("--skip-fk", action="store_true", help="no forward-vs-MuJoCo figure")
-    parser.add_argument("--first-call-child", type=float, nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
     select_device(args.device, args.x64, args.matmul_precision)
     sys.stdout.reconfigure(line_buffering=True)
-    if args.first_call_child:
-        first_call_child(args.first_call_child)
-        return
     gpu = args.device == "gpu"
     quick = args.quick
     if quick:  # a smoke run: no peers, no subprocesses
@@ -389,8 +396,6 @@ def main() -> None:
     n_ikpy = args.n_ikpy if args.n_ikpy is not None else (10 if quick else 200)
     n_body = args.n_body or (16 if quick else 4_096 if gpu else 256)
     repeats = args.repeats or (5 if quick else 20)
-    import peers
-
     import diffbody as db
 
     body = load_body()
@@ -400,10 +405,6 @@ def main() -> None:
     print(f"  in-limit poses of {', '.join(ARM_SEGMENTS)}; success: <= {TOL_POSITION * 1e3:g} mm")
     print(f"  and stop violation <= {limits_tol():g} rad")
 
-    def palm_targets(count: int, seed: int) -> np.ndarray:
-        rng = np.random.default_rng(seed)
-        return peers.palm_positions(body, peers.arm_poses(body, count, rng))
-
     run_record = start_run(
         "ik",
         args,
@@ -411,25 +412,28 @@ def main() -> None:
         ikpy_targets=n_ikpy,
         body_targets=n_body,
         warm_repeats=repeats,
-        seeds={"arm": 0, "single": 1, "body": 2},
+        seeds=SEEDS,
     )
     goals: list[Goal] = []
     speed_goals = {"cpu": "2-core CPU goals", "gpu": "GPU goals"}[args.device]
 
     # 1. the command line
     print(f"\n1. diffbody reach ... --target {' '.join(map(str, CLI_TARGET))} (subprocess)")
-    cli_goals = ("CLI reach, empty compile cache, wall", "CLI reach, filled compile cache, wall")
+    cli_goals = (
+        "README reach command (with --png), empty compile cache, wall",
+        "README reach command (with --png), filled compile cache, wall",
+    )
     if args.skip_cli:
         print("  skipped (--skip-cli)")
-        goals += [not_measured(cli_goals[0], f"< {GOAL_CLI_COLD_S:g} s", "--skip-cli")]
-        goals += [not_measured(cli_goals[1], f"< {GOAL_CLI_WARM_S:g} s", "--skip-cli")]
+        goals += [not_measured(cli_goals[0], f"< {GOAL_CLI_COLD_S:.2f} s", "--skip-cli")]
+        goals += [not_measured(cli_goals[1], f"< {GOAL_CLI_WARM_S:.2f} s", "--skip-cli")]
     else:
         with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out_dir:
             runs = [run_cli(body, args.device, cache, out_dir) for _ in range(2)]
         for name, run, limit in zip(cli_goals, runs, (GOAL_CLI_COLD_S, GOAL_CLI_WARM_S)):
             if run.solved is None:
                 print(f"  {name}: FAILED after {run.wall_s:.2f} s:\n{run.output}")
-                goals.append(Goal(name, "failed", f"< {limit:g} s", False))
+                goals.append(Goal(name, "failed", f"< {limit:.2f} s", False))
                 continue
             print(f"  {name}: {run.wall_s:.2f} s; {run.solved.summary()}")
             goals.append(
@@ -445,14 +449,9 @@ def main() -> None:
             )
 
     # 2, 3. whole-body solve_reach
-    single = palm_targets(1 + repeats, seed=1)
+    single = palm_targets(body, 1 + repeats, SEEDS["single"])
     print("\n2, 3. solve_reach, whole body (default unknowns), one palm target")
-    name = "solve_reach whole body, first call (fresh process)"
-    goals.append(
-        not_measured(name, f"< {GOAL_FIRST_CALL_S:g} s", "--quick")
-        if quick
-        else first_call_goal(args, name, single[0])
-    )
+    goals += first_call_goals(args, single[0])
 
     def solve_one(xyz):
         return db.solve_reach(body, [db.Target.position(EFFECTOR, xyz)])
@@ -481,23 +480,14 @@ def main() -> None:
 
     # 4. the left arm, and the peers
     chunk = args.chunk_size or (max(n, n_body) if gpu else None)
-    targets = palm_targets(n, seed=0)
+    targets = palm_targets(body, n, SEEDS["arm"])
     print(f"\n4. solve_reach_batch, left arm ({', '.join(ARM_SEGMENTS)}), {n:,} targets")
+    goals.append(batch_cold_goal(args, "arm", f"left arm, {n:,} targets", n, chunk))
     arm = batch(body, targets, chunk, segments=ARM_SEGMENTS)
     print(
-        f"  first call {arm.first_s:.2f} s, second {arm.run_s:.3f} s -> compile "
-        f"{arm.compile_s:.2f} s, {arm.solves_per_s:,.0f} solves/s; {arm.solved.summary()}"
-    )
-    goals.append(
-        goal(
-            "solve_reach_batch left arm, compile (first - second call)",
-            arm.compile_s,
-            GOAL_ARM_COMPILE_S,
-            fmt=".2f",
-            unit=" s",
-            op="<",
-            success=arm.solved.success,
-        )
+        f"  in this process: first call {arm.first_s:.2f} s, second {arm.run_s:.3f} s -> "
+        f"compile {arm.compile_s:.2f} s, {arm.solves_per_s:,.0f} solves/s; "
+        f"{arm.solved.summary()}"
     )
     goals.append(
         goal(
@@ -535,10 +525,12 @@ def main() -> None:
 
     # 5. whole-body batch
     print(f"\n5. solve_reach_batch, whole body (default unknowns), {n_body:,} targets")
-    whole = batch(body, palm_targets(n_body, seed=2), chunk)
+    goals.append(batch_cold_goal(args, "body", f"whole body, {n_body:,} targets", n_body, chunk))
+    whole = batch(body, palm_targets(body, n_body, SEEDS["body"]), chunk)
     print(
-        f"  first call {whole.first_s:.2f} s, second {whole.run_s:.3f} s -> compile "
-        f"{whole.compile_s:.2f} s, {whole.solves_per_s:,.0f} solves/s; {whole.solved.summary()}"
+        f"  in this process: first call {whole.first_s:.2f} s, second {whole.run_s:.3f} s -> "
+        f"compile {whole.compile_s:.2f} s, {whole.solves_per_s:,.0f} solves/s; "
+        f"{whole.solved.summary()}"
     )
     goals.append(
         goal(
@@ -595,16 +587,41 @@ def main() -> None:
     run_record.write(results.out_dir(args.out, quick))
 
 
-def first_call_goal(args, name: str, xyz) -> Goal:
-    """Goal 2: `solve_reach`'s first call in a fresh process, no compilation cache."""
-    first_s, first_solved, output = first_call(args.device, args.x64, xyz)
-    if first_solved is None:
-        print(f"  first call: FAILED:\n{output}")
-        return Goal(name, "failed", f"< {GOAL_FIRST_CALL_S:g} s", False)
-    print(f"  first call in a fresh process: {first_s:.2f} s; {first_solved.summary()}")
-    return goal(
-        name, first_s, GOAL_FIRST_CALL_S, fmt=".2f", unit=" s", op="<", success=first_solved.success
+def first_call_goals(args, xyz) -> list[Goal]:
+    """Goal 2: `solve_reach`'s first call in a fresh process without the compilation cache,
+    and its compile from cold (the first call minus a second identical one)."""
+    name, entry = "solve_reach whole body, first call (fresh process)", "solve_reach whole body"
+    if args.quick:
+        why = "--quick"
+        return [
+            not_measured(name, f"< {GOAL_FIRST_CALL_S:.2f} s", why),
+            cold_compile_goal(entry, None, why),
+        ]
+    line, solved = cold(args, "reach", [float(x) for x in xyz], None)
+    if line is None:
+        failed = Goal(name, "failed", f"< {GOAL_FIRST_CALL_S:.2f} s", False)
+        return [failed, cold_compile_goal(entry, None)]
+    print(f"  first call in a fresh process: {line['first_s']:.2f} s; {solved.summary()}")
+    first = goal(
+        name,
+        line["first_s"],
+        GOAL_FIRST_CALL_S,
+        fmt=".2f",
+        unit=" s",
+        op="<",
+        success=solved.success,
     )
+    return [first, cold_compile_goal(entry, line, success=solved.success)]
+
+
+def batch_cold_goal(args, kind: str, what: str, count: int, chunk: int | None) -> Goal:
+    """Goals 4, 5: `solve_reach_batch`'s compile from cold on `count` targets of `kind`'s
+    seed ("arm": the left arm; "body": the whole body), in a fresh process."""
+    entry = f"solve_reach_batch {what}"
+    if args.quick:
+        return cold_compile_goal(entry, None, "--quick")
+    line, solved = cold(args, kind, [count, SEEDS[kind]], chunk)
+    return cold_compile_goal(entry, line, success=None if solved is None else solved.success)
 
 
 def _importable(module: str) -> bool:
