@@ -8,7 +8,6 @@ they are known, else a soft one-to-one assignment at temperature T (`softassign`
 weighted by Geman-McClure at loss scale c. The staged fit that anneals T and c: `_sphere_fit`.
 """
 
-import dataclasses
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -18,9 +17,9 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._body import Body, Pose
-from .._kinematics import place_on_segments
 from ..anthropometry._scaling import N_GROUPS, per_segment, scale_body
-from ..ik._problem import Problem, global_order, make_problem
+from ..ik._points import tree_points
+from ..ik._problem import Problem, make_problem
 from ..ik._unknowns import Layout, whole_tree_layout
 
 FIT_NAMES = ("pose", "lengths", "radii")
@@ -87,17 +86,15 @@ def scaled(template: Body, log_axial: Array, log_radial: Array) -> Body:
 
 
 def model_spheres(start: Start, lay: FitLayout, z: Array) -> Float[Array, "n_sph 4"]:
-    """World centres and radii (m) of the model's spheres for the unknowns z: one walk."""
+    """World centres and radii (m) of the model's spheres for the unknowns z: the point
+    kernel (one walk, closed-form derivatives) on the template's problem with the scaled
+    lengths and sphere origins."""
     x, log_axial, log_radial = lay.split(z, start)
     body = scaled(start.problem.body, log_axial, log_radial)
-    problem = dataclasses.replace(start.problem, body=body)
-    links, tau = problem.links(x)
-    links = global_order(lay.pose, links)
-    tau = tau[np.argsort(np.asarray(lay.pose.chain.segments))]
-    seg = np.asarray(body.sphere_segment, dtype=int)
+    chain = lay.pose.chain
+    slots = tuple(chain.position(int(s)) for s in body.sphere_segment)
     origins = body.sphere_origins
-    local = place_on_segments(body, seg, origins, origins[:, 2], links.R_base[seg], tau[seg])
-    centers = links.p_proximal[seg] + local
+    centers = tree_points(slots, start.problem, body.lengths, origins, origins[:, 2], x)
     return jnp.concatenate([centers, body.sphere_radii[:, None]], axis=-1)
 
 

@@ -16,21 +16,17 @@ from jaxtyping import Array, Float
 from .._body import Body, Pose
 from .._kinematics import (
     Links,
-    exp_swing,
-    feature_points,
     full_chain,
-    place_on_segments,
     pose_frames,
     reroot,
-    socket_frames_from_swing,
-    spine_deviation,
     walk_links,
     world_base,
 )
 from .._limits import angles_from_swing, swing_vector
 from .._posture import angles_of_rotation
-from .._rotations import exp_rotvec, matmul3, rot_z, safe_norm
+from .._rotations import exp_rotvec, rot_z, safe_norm
 from .._spine import spine_angles
+from ._points import segments_of, socket_state, tree_points
 from ._targets import TargetSet
 from ._unknowns import Layout, into_cone, path_to_top, point_segment, squash, unsquash
 
@@ -102,34 +98,7 @@ class Problem(eqx.Module):
     def links(self, x: Array) -> tuple[Links, Array]:
         """The live segments' links (chain order) and twists for the free vector: one walk."""
         lay, b = self.layout, self.body
-        w, tau, spine_target, root = self.state(x)
-        seg = np.asarray(lay.chain.segments, int)
-        moving = set(lay.swing_x + lay.swing_y + lay.twist)
-        k_swing = np.asarray([k for k in range(len(seg)) if k in moving], int)
-        R = self.R_socket0
-        parts, rows = [R], [np.arange(len(seg))]
-        if k_swing.size:
-            parts.append(socket_frames_from_swing(b, w[k_swing], seg[k_swing]))
-            rows.append(k_swing)
-        if lay.spine:
-            _, w_sp, tw_sp = spine_deviation(b, spine_target)
-            k_sp, r_sp = np.asarray(lay.spine, int), np.asarray(lay.spine_rows, int)
-            parts.append(matmul3(b.R_socket_rest[seg[k_sp]], exp_swing(w_sp[r_sp])))
-            rows.append(k_sp)
-            tau = _gather_or(tw_sp[r_sp], _index_of(k_sp, len(seg)), _mask_of(k_sp, len(seg)), tau)
-        position = self.position0
-        if lay.root:
-            k0 = np.asarray([lay.chain.position(0)])
-            parts.append(matmul3(exp_rotvec(root[3:])[None], R[k0]))
-            rows.append(k0)
-            position = position + root[:3]
-        # The last part that names a row wins: a permutation gather, not a scatter.
-        pick = np.zeros(len(seg), int)
-        offset = 0
-        for part_rows in rows:
-            pick[part_rows] = offset + np.arange(len(part_rows))
-            offset += len(part_rows)
-        R = jnp.concatenate(parts)[pick] if len(seg) else R
+        R, tau, position = socket_state(self, x)
         bases = self.bases
         if -1 in lay.bases:
             world = world_base(position)
@@ -148,45 +117,42 @@ class Problem(eqx.Module):
     # --- effectors and residuals ---------------------------------------------------------
     def effectors(self, x: Array, targets: TargetSet) -> tuple[Array, Array]:
         """World positions of the point effectors (n_p, 3) and the world directions of the
-        axis targets' axes (n_a, 3)."""
+        axis targets' axes (n_a, 3): one call of the point kernel (`tree_points`), the
+        center of gravity as the mass-weighted mean of the centroids, an axis as the
+        difference of a point at its local direction (the segment's whole twist) and the
+        segment's proximal joint."""
         lay, b = self.layout, self.body
-        links, tau = self.links(x)
-        allof = jax.tree.map(lambda c, s: jnp.concatenate([c, s]), links, self.bases)
-        tau_all = jnp.concatenate([tau, self.tau_bases])
-        n_j, n_f = b.n_joints, len(b.feature_names)
-        points = []
+        slots, offsets, heights = [], [], []
+        cog = b.n_joints + len(b.feature_names)
         for index, slot in zip(lay.points, lay.point_slot):
-            if index == n_j + n_f:
-                points.append(self._center_of_gravity(links, tau))
-            elif index == 0:
-                points.append(allof.p_proximal[slot])
-            elif index < n_j:
-                points.append(allof.p_distal[slot])
+            s, o, h = _effector_point(self, index, slot)
+            slots += s
+            offsets.append(o)
+            heights.append(h)
+        n_a = len(lay.axis_slot)
+        axis_seg = segments_of(lay, lay.axis_slot)
+        slots += list(lay.axis_slot) * 2
+        offsets += [targets.axis_local, jnp.zeros((n_a, 3), x.dtype)]
+        heights += [b.lengths[axis_seg], jnp.zeros(n_a, x.dtype)]
+        if not slots:
+            return jnp.zeros((0, 3), x.dtype), jnp.zeros((0, 3), x.dtype)
+        offsets = jnp.concatenate([jnp.asarray(o, x.dtype).reshape(-1, 3) for o in offsets])
+        heights = jnp.concatenate([jnp.asarray(h, x.dtype).reshape(-1) for h in heights])
+        q = tree_points(tuple(slots), self, b.lengths, offsets, heights, x)
+        points, at = [], 0
+        for index in lay.points:
+            if index == cog:
+                n = b.n_segments
+                total = jnp.sum(b.masses)
+                weight = b.masses / jnp.where(total > 0, total, 1.0)
+                points.append(weight @ q[at : at + n])
+                at += n
             else:
-                f = np.asarray([index - n_j])
-                p, _ = feature_points(
-                    b,
-                    f,
-                    allof.R_base[slot][None],
-                    allof.p_proximal[slot][None],
-                    tau_all[slot][None],
-                )
-                points.append(p[0])
+                points.append(q[at])
+                at += 1
         p = jnp.stack(points) if points else jnp.zeros((0, 3), x.dtype)
-        slots = np.asarray(lay.axis_slot, int)
-        axes = jnp.einsum("kij,kj->ki", allof.R_twisted[slots], targets.axis_local)
+        axes = q[at : at + n_a] - q[at + n_a :]
         return p, axes
-
-    def _center_of_gravity(self, links: Links, tau: Array) -> Array:
-        b, lay = self.body, self.layout
-        g = global_order(lay, links)
-        t = tau[np.argsort(np.asarray(lay.chain.segments))]
-        all_seg = np.arange(b.n_segments)
-        c = g.p_proximal + place_on_segments(
-            b, all_seg, b.centroids, b.centroids[:, 2], g.R_base, t
-        )
-        total = jnp.sum(b.masses)
-        return jnp.sum(b.masses[:, None] * c, axis=0) / jnp.where(total > 0, total, 1.0)
 
     def residuals(self, x: Array, targets: TargetSet) -> Array:
         """Weighted residuals: points (m), axes (chord lengths ~ rad), the pull toward the
@@ -234,6 +200,26 @@ class Problem(eqx.Module):
         return Pose(position=position, angles=angles, spine_target=spine_target)
 
 
+def _effector_point(problem: Problem, index: int, slot: int) -> tuple[list[int], Array, Array]:
+    """The kernel's points of one point effector (into [joints, features, center of
+    gravity]) on slot `slot`: their slots, offsets (k, 3) and twist heights (k,); the
+    center of gravity as every segment's centroid (the whole tree is walked for it)."""
+    b, lay = problem.body, problem.layout
+    n_j, n_f = b.n_joints, len(b.feature_names)
+    if index == n_j + n_f:
+        slots = [lay.chain.position(s) for s in range(b.n_segments)]
+        return slots, b.centroids, b.centroids[:, 2]
+    if index == 0:
+        return [slot], jnp.zeros((1, 3)), jnp.zeros(1)
+    if index < n_j:
+        L = b.lengths[index - 1]
+        return [slot], jnp.stack([0.0 * L, 0.0 * L, L])[None], L[None]
+    sph = b.feature_sphere[index - n_j]
+    origin = b.sphere_origins[sph]
+    offset = origin + b.sphere_radii[sph] * b.feature_directions[index - n_j]
+    return [slot], offset[None], origin[2:3]
+
+
 def scaled_distance(a: Array, b: Array) -> Array:
     """|a - b| along the last axis, computed as s |(a - b) / s| with s the largest
     component, so huge finite differences do not overflow."""
@@ -241,18 +227,6 @@ def scaled_distance(a: Array, b: Array) -> Array:
     s = jnp.max(jnp.abs(d), axis=-1, keepdims=True)
     s = jnp.where(jnp.isfinite(s) & (s > 0), s, 1.0)
     return s[..., 0] * safe_norm(d / s)
-
-
-def _index_of(k: np.ndarray, m: int) -> np.ndarray:
-    index = np.zeros(m, int)
-    index[k] = np.arange(len(k))
-    return index
-
-
-def _mask_of(k: np.ndarray, m: int) -> np.ndarray:
-    mask = np.zeros(m, bool)
-    mask[k] = True
-    return mask
 
 
 def _is_world(lay: Layout) -> np.ndarray:

@@ -24,13 +24,14 @@ from diffbody.anthropometry._scale_to import LENGTHS, linear_model_jit
 from diffbody.anthropometry._scaling import N_GROUPS, SCALE_GROUPS, per_segment
 from diffbody.files._data_files import data_file
 from diffbody.fitting._marker_layout import mocap_layout, rigid_fit, rotation_vector
-from diffbody.fitting._marker_points import _walk_markers, tree_markers
+from diffbody.fitting._marker_points import tree_markers
 from diffbody.fitting._marker_trial import MarkerTrial
 from diffbody.fitting._markerset import MarkerWarning, load_markerset, scale_offsets, world_markers
 from diffbody.fitting._mocap_solver import MIN_MARKERS
 from diffbody.fitting._motion_fit import fit_motion
 from diffbody.fitting._sphere_fit import FitStatus
 from diffbody.fitting._static_fit import PRIOR_MEASUREMENTS, population_prior, scale_and_register
+from diffbody.ik._points import walk_points
 from diffbody.ik._problem import make_problem
 
 N_FRAMES = 4
@@ -363,7 +364,7 @@ def test_kernel_equals_autodiff_through_the_walk(kernel):
     v = tuple(jnp.asarray(rng.standard_normal(np.shape(a))) for a in args)
 
     def plain(lengths, offsets, x):
-        return _walk_markers(problem, kernel["lay"], lengths, offsets, x)[0]
+        return walk_points(problem, kernel["lay"].slots, lengths, offsets, offsets[:, 2], x)[0]
 
     _, tangent = jax.jvp(plain, tuple(args), v)
     J_fwd = kernel["jacfwd"](problem, *args)
