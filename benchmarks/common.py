@@ -154,8 +154,13 @@ def fresh_process(code: str, device: str, x64: bool = False) -> dict | None:
     env = child_env(device)
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     env["JAX_ENABLE_COMPILATION_CACHE"] = "false"
+    # From benchmarks/, as this process runs: the same diffbody (not one a folder holds).
     proc = subprocess.run(
-        [sys.executable, "-c", prologue + code], env=env, capture_output=True, text=True
+        [sys.executable, "-c", prologue + code],
+        env=env,
+        cwd=BENCHMARKS,
+        capture_output=True,
+        text=True,
     )
     try:
         return json.loads(proc.stdout.strip().splitlines()[-1])

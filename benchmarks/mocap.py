@@ -13,16 +13,20 @@ Data: one adult walking (41 markers, 60 Hz, 151 frames) and a static trial (49 m
    default male body on the static trial (`scale_and_register`), then fits every frame
    (`fit_motion`); OpenSim's IK runs with its scaled Gait2354 model. Both report the plain
    RMS and the largest distance between model and measured markers per frame. Goals: mean
-   marker RMS <= 1.5 cm; no frame worse than OpenSim's same frame by more than 0.5 cm.
-   diffbody's own figures over the whole trial (all 41 markers, their marker-set weights,
-   151 frames) are printed beside.
+   marker RMS <= 15 mm; the accuracy of today or better, mean marker RMS <= 15.07 mm (at
+   commit c66b62c: 15.0711 mm; compared at the 0.01 mm it is printed to); no frame worse
+   than OpenSim's same frame by more than 5 mm. diffbody's own figures over the whole trial
+   (all 41 markers, their marker-set weights, 151 frames) are printed beside.
 2. **Speed**: wall time of scaling (OpenSim's ScaleTool from its files; diffbody's
    `scale_and_register`) and of fitting the 73 frames; frames/s after compilation. OpenSim's
    frames/s is that of its solve alone (the full run minus a one-frame run, so that loading
    the model and the trial does not count against it). Goal: diffbody >= 100x OpenSim's
-   frames/s. diffbody's compile time is the first call minus the median of the repeats;
-   its time to a first answer (load, scale, fit, compilation included) is measured in a
-   fresh process without the persistent compilation cache.
+   frames/s on the same trial, met only at the accuracy of today or better (above).
+   diffbody's compile time here is the first call minus the median of the repeats.
+3. **From cold**: in a fresh process without the persistent compilation cache
+   (`common.fresh_process`), the time to a first answer (load, scale, fit the whole trial,
+   compilation included), and `fit_motion`'s compile from cold: its first call minus a
+   second identical one, < 5 s.
 
 Medians of `--repeats` runs (the machine may be shared). OpenSim (`pip install opensim`) is
 optional: without it the OpenSim columns say so.
@@ -33,12 +37,14 @@ sideways, so every frame would travel to the walking arms, and under `vmap` ever
 as long as the slowest.
 
 `--quick` (a smoke run, as in CI): no OpenSim, no fresh process, one repeat.
+
+Figures are in mm (the marker tables, the goals); the per-marker and per-frame listings in
+cm.
 """
 
 import argparse
-import json
+import dataclasses
 import statistics
-import subprocess
 import sys
 import time
 import warnings
@@ -50,7 +56,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _opensim  # noqa: E402
 import results  # noqa: E402
 from common import (  # noqa: E402
-    child_env,
+    cold_compile_goal,
+    fresh_process,
     goal,
     load_body,
     machine,
@@ -62,53 +69,43 @@ from common import (  # noqa: E402
 )
 
 STATIC, WALK = "subject01_static.trc", "subject01_walk1.trc"
-RMS_GOAL = 0.015  # m: mean marker RMS over the frames
-FRAME_SLACK = 0.005  # m: no frame's RMS above OpenSim's same frame by more than this
+RMS_GOAL = 15.0  # mm: mean marker RMS over the frames
+# mm: the mean marker RMS on OpenSim's setup at commit c66b62c (15.0711 mm): a faster fit
+# must keep it; compared at the 0.01 mm the figure is printed to.
+TODAY_RMS = 15.07
+FRAME_SLACK = 5.0  # mm: no frame's RMS above OpenSim's same frame by more than this
 SPEED_GOAL = 100.0  # diffbody's frames/s over OpenSim's
 
+# Run by `fresh_process` (JAX on the device, no compilation cache): the whole walk from the
+# files, then a second identical `fit_motion` call.
 FIRST_ANSWER = """
-import json, sys, time, warnings
-sys.path.insert(0, {bench!r})
-from common import select_device
-select_device({device!r}, x64={x64!r})
+import json, time, warnings
 t0 = time.perf_counter()
-import jax
 import diffbody as db
-from diffbody.fitting._markerset import load_markerset, match_markers
-from diffbody.fitting._motion_fit import fit_motion
-from diffbody.fitting._static_fit import scale_and_register
-from diffbody.fitting._trc import read_trc
+from common import first_and_second, load_body
 imported = time.perf_counter()
-from common import load_body
 body = load_body(variant="male50")
 warnings.simplefilter("ignore")
-markerset = load_markerset("opensim-gait", body)
-static = read_trc({static!r})
-walk = read_trc({walk!r})
-fit = scale_and_register(body, static, markerset)
-markerset, walk = match_markers(fit.markerset, walk)
-out = fit_motion(fit.body, markerset, walk, start=fit.pose)
-print(json.dumps({{"import_s": imported - t0, "answer_s": time.perf_counter() - imported,
-                  "frames": int(len(out.times))}}))
+markerset = db.load_markerset("opensim-gait", body)
+static = db.read_trc({static!r})
+walk = db.read_trc({walk!r})
+fit = db.scale_and_register(body, static, markerset)
+markerset, walk = db.match_markers(fit.markerset, walk)
+scaled = time.perf_counter()
+out, first_s, second_s = first_and_second(
+    lambda: db.fit_motion(fit.body, markerset, walk, start=fit.pose)
+)
+print(json.dumps({{"import_s": imported - t0, "answer_s": scaled - imported + first_s,
+                  "first_s": first_s, "second_s": second_s, "frames": int(len(out.times))}}))
 """
 
 
 def first_answer(args) -> dict | None:
-    """Seconds from a fresh process's imports to the fitted walk (load, scale, fit, every
-    compilation included), the persistent compilation cache off."""
-    code = FIRST_ANSWER.format(
-        bench=str(Path(__file__).resolve().parent),
-        device=args.device,
-        x64=args.x64,
-        static=str(args.data / STATIC),
-        walk=str(args.data / WALK),
-    )
-    env = child_env(args.device) | {"JAX_ENABLE_COMPILATION_CACHE": "false"}
-    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
-    if run.returncode != 0:
-        print(f"first answer: the fresh process failed:\n{run.stderr[-2000:]}")
-        return None
-    return json.loads(run.stdout.strip().splitlines()[-1])
+    """From a fresh process (FIRST_ANSWER): seconds of its imports, to the fitted walk (load,
+    scale, fit, every compilation included), of `fit_motion`'s first and second call."""
+    data = args.data.resolve()
+    code = FIRST_ANSWER.format(static=str(data / STATIC), walk=str(data / WALK))
+    return fresh_process(code, args.device, args.x64)
 
 
 def repeated(fn, repeats: int):
@@ -128,7 +125,7 @@ def repeated(fn, repeats: int):
 
 def per_frame_table(times, ours, peer, label: str) -> tuple[float, int]:
     """Print diffbody's and OpenSim's per-frame RMS side by side in a few rows; return the
-    worst excess of ours over the peer's (m) and how many frames exceed FRAME_SLACK."""
+    worst excess of ours over the peer's (m) and how many frames exceed FRAME_SLACK (mm)."""
     excess = ours - peer
     print(f"\nper-frame marker RMS, {label} (cm; every 8th frame and the worst)")
     print(f"  {'time s':>7}  {'diffbody':>8}  {'OpenSim':>8}  {'excess':>7}")
@@ -139,7 +136,7 @@ def per_frame_table(times, ours, peer, label: str) -> tuple[float, int]:
             f"  {times[i]:7.3f}  {100 * ours[i]:8.2f}  {100 * peer[i]:8.2f}  "
             f"{100 * excess[i]:+7.2f}{mark}"
         )
-    return float(excess.max()), int(np.sum(excess > FRAME_SLACK))
+    return float(excess.max()), int(np.sum(excess > FRAME_SLACK / 1e3))
 
 
 def main() -> None:
@@ -183,10 +180,7 @@ def main() -> None:
     # Before anything in this process compiles: the fresh process has the machine to itself.
     first = None if args.no_first else first_answer(args)
 
-    from diffbody.fitting._markerset import load_markerset, match_markers
-    from diffbody.fitting._motion_fit import fit_motion
-    from diffbody.fitting._static_fit import scale_and_register
-    from diffbody.fitting._trc import read_trc
+    from diffbody import fit_motion, load_markerset, match_markers, read_trc, scale_and_register
 
     tasks = _opensim.ik_tasks(args.data / _opensim.IK_SETUP)
     body = load_body(variant="male50")
@@ -297,23 +291,31 @@ def main() -> None:
                 + ", ".join(f"{k} {100 * table[k][0]:.2f} / {100 * table[k][1]:.2f}" for k in worst)
             )
 
+    rms_ik_mm = 1e3 * float(np.nanmean(rms_ik))
+    setup = f"OpenSim's setup ({len(set_ik.names)} markers, {n_ik} frames)"
     goals.append(
-        goal(
-            "mean marker RMS, OpenSim's setup (31 markers, 73 frames)",
-            100 * float(np.nanmean(rms_ik)),
-            100 * RMS_GOAL,
-            fmt=".3f",
-            unit=" cm",
-            op="<=",
-        )
+        goal(f"mean marker RMS, {setup}", rms_ik_mm, RMS_GOAL, fmt=".2f", unit=" mm", op="<=")
     )
+    accuracy = goal(
+        f"accuracy of today or better: mean marker RMS, {setup}",
+        round(rms_ik_mm, 2),  # at the precision TODAY_RMS is given to
+        TODAY_RMS,
+        fmt=".2f",
+        unit=" mm",
+        op="<=",
+    )
+    print(
+        f"\naccuracy of today or better: mean marker RMS {rms_ik_mm:.4f} mm on {setup}, "
+        f"today's {TODAY_RMS:.2f} mm: {'met' if accuracy.met else 'NOT MET'}"
+    )
+    goals.append(accuracy)
     goals.append(
         goal(
             f"mean marker RMS, whole trial ({len(registered.names)} markers, {n_all} frames)",
-            100 * float(np.nanmean(fit_all.rms)),
-            100 * RMS_GOAL,
-            fmt=".3f",
-            unit=" cm",
+            1e3 * float(np.nanmean(fit_all.rms)),
+            RMS_GOAL,
+            fmt=".2f",
+            unit=" mm",
             op="<=",
         )
     )
@@ -325,12 +327,12 @@ def main() -> None:
         )
         print(
             f"  worst frame: {100 * worst_excess:+.2f} cm against OpenSim's same frame; "
-            f"{broken} of {n_ik} frames worse by more than {100 * FRAME_SLACK:.1f} cm"
+            f"{broken} of {n_ik} frames worse by more than {FRAME_SLACK:g} mm"
         )
         goals.append(
             goal(
-                f"frames worse than OpenSim's by > {100 * FRAME_SLACK:.1f} cm "
-                f"(worst {100 * worst_excess:+.2f} cm)",
+                f"frames worse than OpenSim's by > {FRAME_SLACK:g} mm "
+                f"(worst {1e3 * worst_excess:+.1f} mm)",
                 float(broken),
                 0.0,
                 fmt=".0f",
@@ -340,7 +342,7 @@ def main() -> None:
     else:
         goals.append(
             not_measured(
-                f"frames worse than OpenSim's by > {100 * FRAME_SLACK:.1f} cm",
+                f"frames worse than OpenSim's by > {FRAME_SLACK:g} mm",
                 "<= 0",
                 why_not,
             )
@@ -394,27 +396,38 @@ def main() -> None:
             f"{first['answer_s']:.1f}",
             "",
         )
+        speed_table.add(
+            f"fit {first['frames']} frames from cold (fresh process, no compilation cache)",
+            f"{first['first_s'] - first['second_s']:.1f}",
+            f"{first['second_s']:.3f}",
+            "",
+        )
         print(
             f"  diffbody's time to a first answer (fresh process: load, scale, fit "
             f"{first['frames']} frames, compilation included): {first['answer_s']:.1f} s, after "
             f"{first['import_s']:.1f} s of imports"
         )
+    speed = "frames/s after compilation over OpenSim's IK, same trial, at today's accuracy"
     if ik_frame_s:
-        goals.append(
-            goal(
-                f"frames/s over OpenSim's (fit, after compilation: {fps_ik:.0f} against "
-                f"{1.0 / ik_frame_s:.1f}, its solve alone)",
-                fps_ik * ik_frame_s,
-                SPEED_GOAL,
-                fmt=".1f",
-                unit="x",
-                success=converged_ik,
-            )
+        ratio = goal(
+            f"{speed} (fit {fps_ik:.0f} against OpenSim {osim} {1.0 / ik_frame_s:.1f}, its "
+            "solve alone)",
+            fps_ik * ik_frame_s,
+            SPEED_GOAL,
+            fmt=".1f",
+            unit="x",
+            success=converged_ik,
         )
+        goals.append(dataclasses.replace(ratio, met=ratio.met and accuracy.met))
     else:
-        goals.append(not_measured("frames/s over OpenSim's", f">= {SPEED_GOAL:.0f}x", why_not))
+        goals.append(not_measured(speed, f">= {SPEED_GOAL:.1f}x", why_not))
+    why_cold = "--quick" if args.quick else "--no-first" if args.no_first else ""
+    goals.append(cold_compile_goal(f"fit_motion, {n_all} frames", first, why_cold))
     print_goals(goals, "motion-capture goals")
-    print("  (here the success column is the fraction of frames whose fit converged)")
+    print(
+        "  (here the success column is the fraction of frames whose fit converged; the speed "
+        "figure is met only at the accuracy of today or better)"
+    )
     run.add_goals(goals)
     run.write(results.out_dir(args.out, args.quick))
 
