@@ -5,6 +5,9 @@ orientation conventions, limits, postures, local frames, the spine and rendering
 of work is a sub-package: `files`, `anthropometry`, `ik`, `fitting`, `images`, `export` and
 `cli` (docs/design.md, "Families")."""
 
+import importlib
+from typing import TYPE_CHECKING
+
 from ._body import Body, Pose, Spine
 from ._descriptors import descriptors
 from ._kinematics import Kinematics, forward
@@ -24,95 +27,208 @@ from ._orientation import (
 from ._posture import apply_standard_orientation, pose_from_joint_positions
 from ._render import draw, draw_cloud, render
 from ._spine import BendResult, bend_pose, bendspine, movespine, spine_angles, with_spine_angles
-from .anthropometry import (
-    MEASUREMENT_NAMES,
-    MEASUREMENTS,
-    SCALE_GROUPS,
-    PopulationPrior,
-    PopulationScaling,
-    measure,
-    measurements,
-    scale_body,
-    scale_population,
-    scale_to,
-    scale_to_percentile,
-)
-from .export import (
-    export_mjcf,
-    export_urdf,
-    mujoco_joint_names,
-    mujoco_qpos,
-    urdf_joint_values,
-)
-from .files import (
-    BodyFileError,
-    load_body,
-    load_spine,
-    save_body,
-)
-from .fitting import (
-    LAB_AXES,
-    FitStatus,
-    MarkerFileError,
-    MarkerSet,
-    MarkerTrial,
-    MarkerWarning,
-    MotionFit,
-    SphereFit,
-    StaticFit,
-    fit_motion,
-    fit_spheres,
-    fit_spheres_batch,
-    load_markerset,
-    match_markers,
-    read_c3d,
-    read_markers,
-    read_trc,
-    sample_pose,
-    scale_and_register,
-    scale_offsets,
-    synthetic_cloud,
-    world_markers,
-    write_trc,
-)
-from .ik import (
-    ReachResult,
-    ReachStatus,
-    Target,
-    solve_reach,
-    solve_reach_batch,
-)
-from .images import (
-    ImageSequence,
-    JointTree,
-    Lifting,
-    LiftOptions,
-    LiftStatus,
-    Pinhole,
-    ReflectionChoice,
-    WebbResult,
-    camera_around,
-    choose_reflections,
-    default_joint_tree,
-    draw_bounds,
-    draw_lifting,
-    image_sequence,
-    joint_centres_from_markers,
-    lift,
-    load_walk_joints,
-    look_at,
-    perpendicular_foot,
-    project,
-    ray_sphere,
-    reaching_motion,
-    read_joint_tree,
-    refine,
-    to_camera,
-    true_reflections,
-    walking_motion,
-    webb,
-    write_joint_tree,
-)
+
+# The families load on first use (PEP 562): `diffbody reach` needs neither the image nor the
+# motion-capture code, and importing every family costs a few tenths of a second.
+_FAMILIES = {
+    "anthropometry": (
+        "MEASUREMENT_NAMES",
+        "MEASUREMENTS",
+        "SCALE_GROUPS",
+        "PopulationPrior",
+        "PopulationScaling",
+        "measure",
+        "measurements",
+        "scale_body",
+        "scale_population",
+        "scale_to",
+        "scale_to_percentile",
+    ),
+    "export": (
+        "export_mjcf",
+        "export_urdf",
+        "mujoco_joint_names",
+        "mujoco_qpos",
+        "urdf_joint_values",
+    ),
+    "files": (
+        "BodyFileError",
+        "load_body",
+        "load_spine",
+        "save_body",
+    ),
+    "fitting": (
+        "LAB_AXES",
+        "FitStatus",
+        "MarkerFileError",
+        "MarkerSet",
+        "MarkerTrial",
+        "MarkerWarning",
+        "MotionFit",
+        "SphereFit",
+        "StaticFit",
+        "fit_motion",
+        "fit_spheres",
+        "fit_spheres_batch",
+        "load_markerset",
+        "match_markers",
+        "read_c3d",
+        "read_markers",
+        "read_trc",
+        "sample_pose",
+        "scale_and_register",
+        "scale_offsets",
+        "synthetic_cloud",
+        "world_markers",
+        "write_trc",
+    ),
+    "ik": (
+        "ReachResult",
+        "ReachStatus",
+        "Target",
+        "solve_reach",
+        "solve_reach_batch",
+    ),
+    "images": (
+        "ImageSequence",
+        "JointTree",
+        "Lifting",
+        "LiftOptions",
+        "LiftStatus",
+        "Pinhole",
+        "ReflectionChoice",
+        "WebbResult",
+        "camera_around",
+        "choose_reflections",
+        "default_joint_tree",
+        "draw_bounds",
+        "draw_lifting",
+        "image_sequence",
+        "joint_centres_from_markers",
+        "lift",
+        "load_walk_joints",
+        "look_at",
+        "perpendicular_foot",
+        "project",
+        "ray_sphere",
+        "reaching_motion",
+        "read_joint_tree",
+        "refine",
+        "to_camera",
+        "true_reflections",
+        "walking_motion",
+        "webb",
+        "write_joint_tree",
+    ),
+}
+_LAZY = {name: family for family, names in _FAMILIES.items() for name in names}
+
+
+def __getattr__(name: str):
+    """A family's public name or the family itself, imported on first use."""
+    if name in _FAMILIES or name == "cli":
+        return importlib.import_module(f".{name}", __name__)
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY) | set(_FAMILIES))
+
+
+if TYPE_CHECKING:  # the same names, for type checkers and editors
+    from .anthropometry import (
+        MEASUREMENT_NAMES,
+        MEASUREMENTS,
+        SCALE_GROUPS,
+        PopulationPrior,
+        PopulationScaling,
+        measure,
+        measurements,
+        scale_body,
+        scale_population,
+        scale_to,
+        scale_to_percentile,
+    )
+    from .export import (
+        export_mjcf,
+        export_urdf,
+        mujoco_joint_names,
+        mujoco_qpos,
+        urdf_joint_values,
+    )
+    from .files import (
+        BodyFileError,
+        load_body,
+        load_spine,
+        save_body,
+    )
+    from .fitting import (
+        LAB_AXES,
+        FitStatus,
+        MarkerFileError,
+        MarkerSet,
+        MarkerTrial,
+        MarkerWarning,
+        MotionFit,
+        SphereFit,
+        StaticFit,
+        fit_motion,
+        fit_spheres,
+        fit_spheres_batch,
+        load_markerset,
+        match_markers,
+        read_c3d,
+        read_markers,
+        read_trc,
+        sample_pose,
+        scale_and_register,
+        scale_offsets,
+        synthetic_cloud,
+        world_markers,
+        write_trc,
+    )
+    from .ik import (
+        ReachResult,
+        ReachStatus,
+        Target,
+        solve_reach,
+        solve_reach_batch,
+    )
+    from .images import (
+        ImageSequence,
+        JointTree,
+        Lifting,
+        LiftOptions,
+        LiftStatus,
+        Pinhole,
+        ReflectionChoice,
+        WebbResult,
+        camera_around,
+        choose_reflections,
+        default_joint_tree,
+        draw_bounds,
+        draw_lifting,
+        image_sequence,
+        joint_centres_from_markers,
+        lift,
+        load_walk_joints,
+        look_at,
+        perpendicular_foot,
+        project,
+        ray_sphere,
+        reaching_motion,
+        read_joint_tree,
+        refine,
+        to_camera,
+        true_reflections,
+        walking_motion,
+        webb,
+        write_joint_tree,
+    )
 
 __version__ = "0.1.0"
 

@@ -1,5 +1,5 @@
-"""Pictures of the sphere body: shaded spheres drawn back to front, like seed 000's
-displays, with matplotlib (orthographic views)."""
+"""Pictures of the sphere body: shaded spheres, like seed 000's displays, rasterised with a
+depth buffer in NumPy and placed in matplotlib axes (orthographic views)."""
 
 from collections.abc import Sequence
 from pathlib import Path
@@ -63,6 +63,54 @@ def camera(view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     return to_camera, right, up, label
 
 
+def shade(
+    centers: np.ndarray,
+    radii: np.ndarray,
+    colours: np.ndarray,
+    view: View,
+    pixels_per_metre: float,
+) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+    """The spheres as one shaded RGBA image (z-buffered per pixel, lit from the upper left of
+    the screen; transparent off the body) and its extent in screen metres.
+
+    Args:
+        centers (n, 3), radii (n,): world spheres, m; colours (n, 3): their base RGB.
+        view: the camera (`camera`); pixels_per_metre: the image's resolution.
+
+    Returns:
+        (h, w, 4) float RGBA, rows bottom-up; (left, right, bottom, top), m, for `imshow`.
+    """
+    to_camera, right, up, _ = camera(view)
+    xy = np.stack([centers @ right, centers @ up], axis=-1)
+    depth = centers @ to_camera
+    lo = (xy - radii[:, None]).min(0)
+    hi = (xy + radii[:, None]).max(0)
+    w, h = np.ceil((hi - lo) * pixels_per_metre).astype(int) + 1
+    image = np.zeros((h, w, 4), np.float32)
+    nearest = np.full((h, w), -np.inf, np.float32)
+    light = np.array([-0.4, 0.55, 0.73])
+    light /= np.linalg.norm(light)
+    # Pixel centres, m from the image's lower left corner.
+    at = (np.arange(max(w, h), dtype=np.float32) + 0.5) / pixels_per_metre
+    for c, z, r, base in zip(xy - lo, depth, radii, colours):
+        x0, y0 = np.maximum(np.floor((c - r) * pixels_per_metre).astype(int), 0)
+        x1, y1 = np.ceil((c + r) * pixels_per_metre).astype(int)
+        dx = (at[x0 : min(x1, w)] - c[0]) / r  # (box w,), in radii
+        dy = (at[y0 : min(y1, h), None] - c[1]) / r  # (box h, 1)
+        nz2 = 1.0 - dx**2 - dy**2
+        near = nearest[y0:y1, x0:x1]  # views: written in place
+        z_front = z + r * np.sqrt(np.maximum(nz2, 0.0))
+        mine = (nz2 > 0.0) & (z_front > near)
+        near[mine] = z_front[mine]
+        # Lambert's diffuse term with an ambient floor and a small highlight.
+        nx, ny = np.broadcast_to(dx, mine.shape)[mine], np.broadcast_to(dy, mine.shape)[mine]
+        lit = np.clip(nx * light[0] + ny * light[1] + np.sqrt(nz2[mine]) * light[2], 0.0, 1.0)
+        rgb = np.clip(base * (0.3 + 0.75 * lit[:, None]) + 0.3 * lit[:, None] ** 12, 0.0, 1.0)
+        image[y0:y1, x0:x1][mine] = np.concatenate([rgb, np.ones_like(lit)[:, None]], -1)
+    extent = (lo[0], lo[0] + w / pixels_per_metre, lo[1], lo[1] + h / pixels_per_metre)
+    return image, extent
+
+
 def draw(
     ax,
     body: Body,
@@ -73,31 +121,24 @@ def draw(
     skeleton: bool = False,
     ground: bool = True,
 ) -> None:
-    """Draw the shaded sphere body into a matplotlib Axes."""
-    from matplotlib.collections import PatchCollection
-    from matplotlib.patches import Circle
-
+    """Draw the shaded sphere body into a matplotlib Axes: one image (`shade`) at about 1.5 times
+    the axes' resolution, placed in screen metres, so outlines and points drawn after it
+    (`draw_cloud`) land on the body."""
     # The names are static fields but no input of the kinematics: without them, bodies of
     # one structure (scaled ones, say) share the compiled forward.
     fk = _forward_jit(without_names(body), pose)
     centers = np.asarray(fk.sphere_centers, dtype=float)
     radii = np.asarray(fk.sphere_radii, dtype=float)
     to_camera, right, up, label = camera(view)
+    colours = np.array(
+        [_REGION_COLOURS[_region(body.segment_names[s])] for s in np.asarray(body.sphere_segment)]
+    )
     xy = np.stack([centers @ right, centers @ up], axis=-1)
-    order = np.argsort(centers @ to_camera)  # far first (painter's algorithm)
-    light = np.array([-0.4, 0.55])  # light from the upper left of the screen
-    layers = 9
-    patches, colours = [], []
-    for k in order:
-        base = np.array(_REGION_COLOURS[_region(body.segment_names[body.sphere_segment[k]])])
-        for j in range(layers):
-            t = j / (layers - 1)
-            r = radii[k] * (1.0 - 0.85 * t**0.9)
-            c = xy[k] + light * radii[k] * 0.5 * t
-            shade = base * (0.35 + 0.75 * t**0.6) + 0.3 * t**6
-            patches.append(Circle((c[0], c[1]), r))
-            colours.append(np.clip(shade, 0.0, 1.0))
-    ax.add_collection(PatchCollection(patches, facecolors=colours, edgecolors="none"))
+    lo, hi = xy.min(axis=0) - radii.max(), xy.max(axis=0) + radii.max()
+    pixels = ax.get_window_extent().height  # the axes' height in the figure's pixels
+    per_metre = float(np.clip(1.5 * pixels / (hi - lo).max(), 100.0, 2000.0))
+    image, extent = shade(centers, radii, colours, view, per_metre)
+    ax.imshow(image, extent=extent, origin="lower", interpolation="antialiased", zorder=1)
     if skeleton:
         p = np.asarray(fk.joint_positions, dtype=float)
         for i in range(1, body.n_segments):
@@ -106,7 +147,6 @@ def draw(
     if features:
         f = np.asarray(fk.feature_points, dtype=float)
         ax.scatter(f @ right, f @ up, s=6, color="crimson", zorder=4)
-    lo, hi = xy.min(axis=0) - radii.max(), xy.max(axis=0) + radii.max()
     if ground and up[2] > 0.5:  # the floor z = 0 as a line in side-on views
         ax.axhline(0.0, color="0.5", lw=0.8, zorder=0)
         lo[1] = min(lo[1], -0.05)
@@ -171,10 +211,9 @@ def render(
     Returns:
         The path written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    # A Figure on Agg's canvas: pyplot's global state and interactive backends are not needed.
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     views = (
         [view]
@@ -182,16 +221,20 @@ def render(
         or (isinstance(view, tuple) and len(view) == 2 and not isinstance(view[0], (str, tuple)))
         else list(view)
     )
-    fig, axes = plt.subplots(1, len(views), figsize=(3.2 * len(views), 5.2), squeeze=False)
+    for v in views:
+        camera(v)  # an unknown view is refused before any drawing
+    fig = Figure(figsize=(3.2 * len(views), 5.2), dpi=dpi)
+    FigureCanvasAgg(fig)
+    # Fixed margins: tight_layout would draw the whole figure once more to measure it.
+    fig.subplots_adjust(left=0.02, right=0.98, bottom=0.02, top=0.88 if title else 0.94)
+    axes = fig.subplots(1, len(views), squeeze=False)
     for ax, v in zip(axes[0], views):
         draw(ax, body, pose, v, features=features, skeleton=skeleton)
         if cloud is not None:
             draw_cloud(ax, cloud[0], cloud[1], v, cloud[2] if len(cloud) > 2 else None)
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi)
-    plt.close(fig)
     return path

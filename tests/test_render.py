@@ -5,6 +5,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import diffbody as db
 from diffbody.cli._main import main
@@ -38,6 +40,50 @@ def test_render_several_views_and_angles(male50, tmp_path):
     )
     one = _image(db.render(male50, male50.rest_pose(), tmp_path / "one.png"))
     assert _image(path).shape[1] > 2 * one.shape[1]
+
+
+def _spheres(n: int, seed: int):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(-0.2, 0.2, (n, 3)), rng.uniform(0.02, 0.1, n), rng.uniform(0, 1, (n, 3))
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(2, 12), st.integers(0, 2**31 - 1), st.sampled_from(["front", (30.0, 20.0)]))
+def test_shade_is_a_depth_buffer(n, seed, view):
+    """Each pixel shows the sphere surface nearest the camera, whatever the drawing order."""
+    centers, radii, colours = _spheres(n, seed)
+    image, extent = db._render.shade(centers, radii, colours, view, 400.0)
+    order = np.random.default_rng(seed + 1).permutation(n)
+    again, same = db._render.shade(centers[order], radii[order], colours[order], view, 400.0)
+    assert same == extent
+    np.testing.assert_allclose(image, again, atol=1e-6)
+    # Opaque exactly over the spheres' discs (up to a pixel at the edges).
+    to_camera, right, up, _ = db._render.camera(view)
+    h, w = image.shape[:2]
+    x = extent[0] + (np.arange(w) + 0.5) / 400.0
+    y = extent[2] + (np.arange(h) + 0.5) / 400.0
+    gap = (
+        np.hypot(
+            x[None, :, None] - (centers @ right)[None, None], y[:, None, None] - (centers @ up)
+        )
+        - radii
+    )
+    inside, outside = gap.min(-1) < -1.5 / 400.0, gap.min(-1) > 1.5 / 400.0
+    assert np.all(image[inside, 3] == 1.0) and np.all(image[outside, 3] == 0.0)
+
+
+def test_shade_lights_the_upper_left_and_keeps_the_colour():
+    """One sphere seen from the front: brightest toward the light (upper left of the
+    screen), darkest at the lower right rim, in the sphere's own hue."""
+    image, _ = db._render.shade(
+        np.zeros((1, 3)), np.array([0.1]), np.array([[0.2, 0.4, 0.8]]), "front", 500.0
+    )
+    lum = image[..., :3].sum(-1) * image[..., 3]
+    h, w = lum.shape
+    iy, ix = np.unravel_index(np.argmax(lum), lum.shape)
+    assert ix < w / 2 and iy > h / 2  # rows go bottom-up
+    lit = image[image[..., 3] == 1.0][:, :3]
+    assert np.all(lit[:, 2] >= lit[:, 0])  # still blue, not washed out
 
 
 def test_render_rejects_unknown_view(male50, tmp_path):

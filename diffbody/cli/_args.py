@@ -5,6 +5,13 @@ import argparse
 import math
 import os
 
+CACHE_HELP = """\
+compiled solvers: the commands that solve (reach, batch, scale, fit, mocap, webb) keep what
+they compile in JAX's persistent compilation cache, so that a repeated command reads it back
+instead of compiling again: the folder $JAX_COMPILATION_CACHE_DIR when set, else
+$XDG_CACHE_HOME/diffbody/jax (~/.cache/diffbody/jax). Delete that folder to clear it (it is
+refilled as needed); DIFFBODY_NO_CACHE=1 leaves it off."""
+
 
 def keep_compiled() -> None:
     """Turn on JAX's persistent compilation cache for the command line, so that a repeated
@@ -24,6 +31,25 @@ def keep_compiled() -> None:
         jax.config.update("jax_compilation_cache_dir", str(base / "diffbody" / "jax"))
     if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+
+
+def prefetch(*modules: str) -> None:
+    """Import modules in a background thread while the caller goes on: the picture's
+    matplotlib (about 0.5 s of imports) loads while XLA compiles or reads back the solver,
+    which release Python's lock. Called once the solver's own imports are done, so the two
+    threads never import the same module; a failure here is left for the real import to
+    report."""
+    import importlib
+    import threading
+
+    def load() -> None:
+        for name in modules:
+            try:
+                importlib.import_module(name)
+            except Exception:  # the drawing's own import raises it where it can be reported
+                return
+
+    threading.Thread(target=load, name="diffbody-prefetch", daemon=True).start()
 
 
 def positive_int(text: str) -> int:

@@ -4,7 +4,7 @@ and the error message."""
 import argparse
 import sys
 
-from ._args import keep_compiled
+from ._args import CACHE_HELP, keep_compiled
 from ._batch import add_batch_command
 from ._fit import add_fit_command
 from ._mocap import add_mocap_command
@@ -20,7 +20,10 @@ COMPILING = ("reach", "batch", "scale", "fit", "mocap", "webb")
 def main(argv: list[str] | None = None) -> int:
     """Run the `diffbody` command line on argv (default sys.argv[1:]); the exit status."""
     parser = argparse.ArgumentParser(
-        prog="diffbody", description="Differentiable kinematics of sphere-skinned bodies."
+        prog="diffbody",
+        description="Differentiable kinematics of sphere-skinned bodies.",
+        epilog=CACHE_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", required=True)
     for add_command in (

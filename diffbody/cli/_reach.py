@@ -1,7 +1,10 @@
 """The `diffbody reach` command: one effector to one target, the posture printed and
 optionally written as JSON and drawn."""
 
+import argparse
+
 from ._args import (
+    CACHE_HELP,
     add_body_args,
     add_solver_args,
     body_from_args,
@@ -9,12 +12,18 @@ from ._args import (
     check_output,
     check_segments,
     finite_float,
+    prefetch,
 )
 
 
 def add_reach_command(sub) -> None:
     """Add the `reach` subcommand to the `diffbody` command line's subparsers."""
-    p = sub.add_parser("reach", help="reach one target with an effector (inverse kinematics)")
+    p = sub.add_parser(
+        "reach",
+        help="reach one target with an effector (inverse kinematics)",
+        epilog=CACHE_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     add_body_args(p)
     p.add_argument("--effector", required=True, help="joint, feature or center_of_gravity")
     p.add_argument("--target", nargs=3, type=finite_float, required=True, metavar=("X", "Y", "Z"))
@@ -45,6 +54,7 @@ def _verdict(out, k: int) -> str:
 def _reach(args) -> int:
     import json
 
+    import jax
     import numpy as np
 
     from ..ik._reach import ReachStatus, solve_reach
@@ -58,6 +68,8 @@ def _reach(args) -> int:
     if note:
         print(note)
     target = np.asarray(args.target, float)
+    if args.png:
+        prefetch("matplotlib.figure", "matplotlib.backends.backend_agg")
     out = solve_reach(
         body,
         [Target.position(args.effector, target)],
@@ -65,6 +77,9 @@ def _reach(args) -> int:
         segments=args.segments,
         starts=args.starts,
     )
+    # One transfer to the host: indexing device arrays one by one compiles a small program
+    # for each (tens of milliseconds apiece in a fresh process).
+    out = jax.device_get(out)
     rest = np.asarray(body.rest_pose().angles)
     angles = np.degrees(np.asarray(out.pose.angles))
     verdict = _verdict(out, 0)
