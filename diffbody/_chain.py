@@ -86,6 +86,22 @@ def make_chain(parent: Sequence[int], segments: Iterable[int], bases: Sequence[i
     )
 
 
+def on_paths(parent: Sequence[int], nodes: Iterable[int]) -> np.ndarray:
+    """(k, n) 0/1: node i of a tree with `parent` (n,; -1 or out of range at a top) lies on
+    node k's path to its top, itself included; a zero row for a node that is not in the
+    tree (-1 or out of range). The one ancestor matrix: of a point's segments (the point
+    kernel), of the standard position's joints (scaling), of an image skeleton's parts."""
+    parent = [int(p) for p in parent]
+    n = len(parent)
+    nodes = [int(k) for k in nodes]
+    A = np.zeros((len(nodes), n))
+    for row, i in enumerate(nodes):
+        while 0 <= i < n:
+            A[row, i] = 1.0
+            i = parent[i]
+    return A
+
+
 def walk(chain: Chain, step: Callable, bases, xs, *, unroll: bool | None = None):
     """Walk the chain: state_i = step(state of i's parent, xs_i), parents first.
 

@@ -20,6 +20,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._body import Body
+from .._chain import on_paths
 
 # Scale groups: segments scaled together. Left and right share a factor (ANSUR II measures
 # one side), the five lumbar and the twelve thoracic vertebrae each share one.
@@ -111,22 +112,15 @@ def scale_body(
     return stand_on_ground(scaled)
 
 
-def _ancestors(body: Body) -> np.ndarray:
-    """(n_joint, n_seg) 1 where segment j lies on the path from the root joint to joint i."""
-    A = np.zeros((body.n_joints, body.n_segments))
-    for i in range(1, body.n_segments):  # breadth first: a parent's row is complete
-        A[body.distal_joint[i]] = A[body.proximal_joint[i]]
-        A[body.distal_joint[i], i] = 1.0
-    return A
-
-
 def rest_points(body: Body) -> tuple[Array, Array]:
     """Joint positions (n_joint, 3) and sphere centres (n_sph, 3) of the standard position,
     relative to the root joint (m). Every frame is the standard cross of axes, so this is one
     matrix product: each joint is the sum of length x direction over the segments above it."""
     R = body.R_socket_rest
     steps = body.lengths[:, None] * R[:, :, 2]
-    joints = jnp.asarray(_ancestors(body)) @ steps
+    # Joint j >= 1 ends segment j - 1; joint 0 has no segment (the whole body, on every
+    # path, has length 0).
+    joints = jnp.asarray(on_paths(body.parent, range(-1, body.n_segments))) @ steps
     joints = joints - joints[body.root_joint]
     seg = np.asarray(body.sphere_segment, dtype=int)
     proximal = np.asarray(body.proximal_joint)[seg]

@@ -22,6 +22,7 @@ import numpy as np
 from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Float
 
+from .._chain import on_paths
 from .._kinematics import (
     exp_swing,
     place_on_segments,
@@ -117,16 +118,9 @@ def segments_of(lay: Layout, slots: tuple[int, ...]) -> np.ndarray:
 def _ancestry(lay: Layout, slots: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     """(k, m) static masks over the chain: chain segment i on point k's path to the top
     (itself included), and i being point k's own segment; zero rows for points on bases."""
-    chain = lay.chain
-    parent = {k: p for k, p in enumerate(chain.parent_slot) if p < chain.size}
-    on_path = np.zeros((len(slots), chain.size))
-    own = np.zeros_like(on_path)
-    for k, s in enumerate(slots):
-        if s < chain.size:
-            own[k, s] = 1.0
-        while s is not None and s < chain.size:
-            on_path[k, s] = 1.0
-            s = parent.get(s)
+    m = lay.chain.size
+    on_path = on_paths(lay.chain.parent_slot, slots)
+    own = on_paths([-1] * m, slots)
     return on_path, own
 
 
