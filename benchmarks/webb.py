@@ -18,9 +18,19 @@ mean over parts of |L / L_true - 1| (the semi-real truth is each part's median o
 trial), MPJPE over all joints and frames (camera frame, absolute: the reference depth is
 given), and the share of part-frames whose two reflections lie over 1 cm apart where the
 chosen reflection is the true one.
+
+Speed: `--batch` views (1 px noise, from 45 degrees) of one 100-frame walk. "Webb alone" is
+Webb's kernel under jit(vmap); the whole pipeline (Webb, continuity, refinement) is the
+public `diffbody.lift`, the median of `--repeats` calls after the first, whose compile time
+is the first call minus that median. Goals: the whole pipeline >= 1,000 image sequences/s
+(batch 256, CPU); `lift`'s compile from cold, its first call minus a second identical one
+in a fresh process without the persistent compilation cache (`common.fresh_process`),
+< 5 s (not with `--quick`); refined lengths within 1 % and MPJPE < 20 mm at 1 px, 100
+frames.
 """
 
 import argparse
+import statistics
 import time
 from pathlib import Path
 
@@ -28,7 +38,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import results
-from common import bench, goal, machine, ms, print_goals, start_run
+from common import (
+    bench,
+    cold_compile_goal,
+    fresh_process,
+    goal,
+    machine,
+    ms,
+    print_first_and_second,
+    print_goals,
+    start_run,
+    timed,
+)
 
 NOISE = (0.0, 0.5, 1.0, 2.0)  # px
 FOCAL = 1000.0  # px
@@ -64,6 +85,31 @@ def sequences(tree, worlds, azimuths, noise, key, dtype):
             k = jax.random.fold_in(key, 100 * i + j)
             seqs.append(image_sequence(tree, cam, jnp.asarray(world), noise, k))
     return jax.tree.map(lambda *x: jnp.stack(x).astype(dtype), *seqs)
+
+
+def speed_batch(body, tree, n: int, dtype):
+    """The speed figures' batch: `n` views (45 degrees, 1 px) of one 100-frame walk, and
+    each view's true reflections of its first frame (the anchor)."""
+    from diffbody.images._motions import walking_motion
+    from diffbody.images._webb import true_reflections
+
+    world = [walking_motion(body, tree, 100)]
+    many = sequences(tree, world * n, (45.0,), 1.0, jax.random.PRNGKey(0), dtype)
+    return many, true_reflections(tree, many.joints)
+
+
+def cold_lift(n: int) -> None:
+    """In a fresh process (`common.fresh_process`): `lift` on the speed batch of `n`, its
+    first call and a second identical one (`print_first_and_second`)."""
+    import diffbody as db
+
+    dtype = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
+    tree = db.default_joint_tree()
+    many, refl = speed_batch(db.load_body(), tree, n, dtype)
+    anchor = refl[:, 0]
+    print_first_and_second(
+        lambda: db.lift(tree, many.uv, many.root_depth, many.focal, anchor=anchor)
+    )
 
 
 def errors(lengths, joints, truth_lengths, truth_joints):
@@ -229,9 +275,7 @@ def main() -> None:
     from diffbody.images._reflections import choose_kernel
     from diffbody.images._webb import webb_kernel
 
-    world = [walking_motion(body, tree, 100)]
-    many = sequences(tree, world * n, (45.0,), 1.0, key, dtype)
-    refl = true_reflections(tree, many.joints)
+    many, refl = speed_batch(body, tree, n, dtype)
     anchor = refl[:, 0]
     opts = jax.tree.map(lambda v: jnp.asarray(v, dtype), LiftOptions())
 
@@ -240,12 +284,8 @@ def main() -> None:
             uv, depth, focal, refl
         )
 
-    def pipeline(uv, depth, focal, anchor):
-        def one(a, b, c, d):
-            ch = choose_kernel(tree, a, b, c, d)
-            return lift_kernel(tree, a, b, c, ch.joints, ch.median_lengths, opts).lengths
-
-        return jax.vmap(one)(uv, depth, focal, anchor)
+    def pipeline():
+        return db.lift(tree, many.uv, many.root_depth, many.focal, anchor=anchor)
 
     print(
         f"\nspeed: batches of {n} sequences of 100 frames, {dtype.__name__}, "
@@ -256,12 +296,18 @@ def main() -> None:
         f"  webb alone      compile {c1:6.1f} s  run {r1 * 1e3:9.1f} ms  "
         f"{n / r1:12,.0f} sequences/s"
     )
-    c2, r2 = bench(pipeline, (many.uv, many.root_depth, many.focal, anchor), args.repeats)
+    _, first_s = timed(pipeline)
+    r2 = statistics.median(timed(pipeline)[1] for _ in range(args.repeats))
+    c2 = max(first_s - r2, 0.0)
     print(
         f"  whole pipeline  compile {c2:6.1f} s  run {r2 * 1e3:9.1f} ms  "
         f"{n / r2:12,.0f} sequences/s "
-        f"(continuity + {LiftOptions().max_steps} Levenberg-Marquardt steps)"
+        f"(`lift`: continuity + {LiftOptions().max_steps} Levenberg-Marquardt steps)"
     )
+    # lift's compile from cold, in a fresh process on this process's device (this one waits)
+    device = "cpu" if jax.default_backend() == "cpu" else "gpu"
+    code = f"from webb import cold_lift\ncold_lift({n})"
+    cold = None if args.quick else fresh_process(code, device, args.x64)
 
     # --- the structured solve against a dense one (one sequence, one refinement) ----------
     import lineax as lx
@@ -308,13 +354,34 @@ def main() -> None:
                 op="<",
             )
         )
-    goals.append(goal("whole pipeline, 100 frames, CPU", n / r2, 1000.0, fmt=",.0f", unit=" seq/s"))
+    goals.append(
+        goal(
+            f"image sequences/s, whole pipeline (Webb, continuity, refinement; `lift`), "
+            f"batch {n} of 100 frames, CPU",
+            n / r2,
+            1000.0,
+            fmt=",.0f",
+            unit=" seq/s",
+        )
+    )
+    goals.append(
+        cold_compile_goal(
+            f"lift, {n} sequences of 100 frames", cold, "--quick" if args.quick else ""
+        )
+    )
     print_goals(goals, "goals (the seed reports 10-15 % length error on hand-drawn figures)")
     speed = run.table(
         "speed", ["batch of 100-frame sequences", "compile (s)", "run (ms)", "sequences/s"], "lrrr"
     )
     speed.add(f"Webb alone, {n}", f"{c1:.1f}", ms(r1), f"{n / r1:,.0f}")
-    speed.add(f"whole pipeline, {n}", f"{c2:.1f}", ms(r2), f"{n / r2:,.0f}")
+    speed.add(f"whole pipeline (`lift`), {n}", f"{c2:.1f}", ms(r2), f"{n / r2:,.0f}")
+    if cold is not None:
+        speed.add(
+            f"whole pipeline (`lift`), {n}, from cold (fresh process, no compilation cache)",
+            f"{cold['first_s'] - cold['second_s']:.1f}",
+            ms(cold["second_s"]),
+            f"{n / cold['second_s']:,.0f}",
+        )
     no_anchor = run.table(
         "reflections", ["reflections by continuity, no frame known", "match"], "lr"
     )
