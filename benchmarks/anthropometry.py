@@ -15,8 +15,8 @@ beside its goal, with the machine and versions.
    <= 9 mm from the five inputs.
 2. **Population.** All ANSUR II subjects (both sexes, each with its own prior of every row)
    scaled from stature and weight, and from the five inputs: the compile time (the first
-   call on a few rows) and the run time of the whole population (the second call) < 10 s
-   each, every given measurement reproduced within 1 mm.
+   call minus the second) and the run time of the whole population (the second call),
+   printed apart, < 10 s each, every given measurement reproduced within 1 mm.
 
 Sphere-cloud fits have their own benchmark: benchmarks/_sphere_cloud.py. `--quick` scales
 every 20th held-out row of one sex and the population from stature and weight only.
@@ -63,9 +63,9 @@ def held_out(db, sex: str, known: tuple[str, ...], every: int = 1) -> dict[str, 
     }
 
 
-def population(db, known: tuple[str, ...], sexes=SEXES) -> tuple[float, float, float]:
-    """(compile s, run s, fraction reproduced) over every subject of both sexes: the run is
-    the second call, the compile time the first call minus the second."""
+def population(db, known: tuple[str, ...], sexes=SEXES) -> tuple[float, float, float, int]:
+    """(compile s, run s, fraction reproduced, subjects) over every subject of `sexes`: the
+    run is the second call, the compile time the first call minus the second."""
     from diffbody.anthropometry._prior import ansur2_subjects
 
     cols = [db.MEASUREMENT_NAMES.index(k) for k in known]
@@ -82,7 +82,7 @@ def population(db, known: tuple[str, ...], sexes=SEXES) -> tuple[float, float, f
     outs, run_s = everyone()
     compile_s = max(first - run_s, 0.0)
     reproduced = np.concatenate([o.reproduced for o in outs]).mean()
-    return compile_s, run_s, float(reproduced)
+    return compile_s, run_s, float(reproduced), sum(len(v) for v in data.values())
 
 
 def main() -> None:
@@ -116,36 +116,38 @@ def main() -> None:
     )
     speed = run.table(
         "population",
-        ["population, both sexes", "compile (s)", "run (s)", "given reproduced"],
-        "lrrr",
+        ["population, both sexes", "compile (s)", "run (s)", "given reproduced", "goal"],
+        "lrrrl",
     )
 
     # The population first: its first call compiles from cold.
     for known in inputs:
-        compile_s, run_s, reproduced = population(db, known, sexes)
+        compile_s, run_s, reproduced, count = population(db, known, sexes)
+        tag = f"population, {len(known)} inputs"
+        compiled = goal(f"{tag}: compile", compile_s, 10.0, fmt=".1f", unit=" s", op="<")
+        ran = goal(
+            f"{tag}: run (all {count:,})",
+            run_s,
+            10.0,
+            fmt=".2f",
+            unit=" s",
+            op="<",
+            success=reproduced,
+        )
+        met = "met" if compiled.met and ran.met else "**not met**"
         speed.add(
-            f"{len(known)} inputs, {'all 6,068' if sexes == SEXES else sexes[0]} subjects",
+            f"{len(known)} inputs, {'all' if sexes == SEXES else sexes[0]} {count:,} subjects",
             f"{compile_s:.1f}",
             f"{run_s:.2f}",
             f"{reproduced:.2%}",
+            f"< 10 s each, {met}",
         )
         print(
-            f"\npopulation from {len(known)} inputs: compile {compile_s:.1f} s, run "
-            f"{run_s:.2f} s for all subjects, reproduced {reproduced:.2%}"
+            f"\npopulation from {len(known)} inputs, {count:,} subjects:\n  compile "
+            f"{compile_s:.1f} s (first call - second)\n  run {run_s:.2f} s (second call), "
+            f"reproduced {reproduced:.2%}"
         )
-        tag = f"population, {len(known)} inputs"
-        goals.append(goal(f"{tag}: compile", compile_s, 10.0, fmt=".1f", unit=" s", op="<"))
-        goals.append(
-            goal(
-                f"{tag}: run (all 6,068)",
-                run_s,
-                10.0,
-                fmt=".2f",
-                unit=" s",
-                op="<",
-                success=reproduced,
-            )
-        )
+        goals += [compiled, ran]
 
     print("\nheld-out accuracy (prior on even rows, odd rows scaled), MAE in mm")
     print(f"  {'sex':<7}{'inputs':<8}{'diffbody':>9}{'uniform':>9}{'linear':>9}{'reproduced':>12}")
@@ -176,7 +178,7 @@ def main() -> None:
                     op="<=",
                 )
             )
-    print_goals(goals, "anthropometry goals")
+    print_goals(goals, "anthropometry goals", "given measurements reproduced within 1 mm")
     run.add_goals(goals)
     run.write(results.out_dir(args.out, args.quick))
 

@@ -248,13 +248,17 @@ def cold_compile_goal(
     )
 
 
-def print_goals(goals: list[Goal], title: str) -> None:
-    """The goals table: figure, measured, success rate, goal, met / not met."""
+def print_goals(goals: list[Goal], title: str, success: str = "") -> None:
+    """The goals table: figure, measured, success rate, goal, met / not met. `success` says
+    what the success column counts (default: targets reached within the limits); the line
+    is left out when no figure has a success rate."""
     print(f"\n{title}")
-    print(
-        f"  speed figures count only at >= {SUCCESS_FOR_SPEED:.1%} of targets within "
-        f"{TOL_POSITION * 1e3:g} mm and within the joint limits (success column)"
-    )
+    success = success or (f"targets within {TOL_POSITION * 1e3:g} mm and within the joint limits")
+    if any(g.success for g in goals):
+        print(
+            f"  figures with a success column count only at >= {SUCCESS_FOR_SPEED:.1%} "
+            f"success: {success}"
+        )
     header = ("figure", "measured", "success", "goal", "met / not met")
     w = (
         max(len(header[0]), *(len(g.figure) for g in goals)),

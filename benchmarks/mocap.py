@@ -423,11 +423,8 @@ def main() -> None:
         goals.append(not_measured(speed, f">= {SPEED_GOAL:.1f}x", why_not))
     why_cold = "--quick" if args.quick else "--no-first" if args.no_first else ""
     goals.append(cold_compile_goal(f"fit_motion, {n_all} frames", first, why_cold))
-    print_goals(goals, "motion-capture goals")
-    print(
-        "  (here the success column is the fraction of frames whose fit converged; the speed "
-        "figure is met only at the accuracy of today or better)"
-    )
+    print_goals(goals, "motion-capture goals", "frames whose fit converged")
+    print("  (the speed figure is met only at the accuracy of today or better)")
     run.add_goals(goals)
     run.write(results.out_dir(args.out, args.quick))
 

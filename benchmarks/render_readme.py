@@ -57,7 +57,7 @@ def goals_table(goals: list[dict]) -> dict:
         for g in goals
     ]
     return {
-        "columns": ["figure", "measured", "success", "goal", ""],
+        "columns": ["figure", "measured", "success", "goal", "met / not met"],
         "align": "lrrrl",
         "rows": rows,
     }

@@ -14,7 +14,20 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from render_readme import MARKER, README, caption, changed_since, markdown, render_one  # noqa: E402
+from common import (  # noqa: E402
+    GOAL_COLD_COMPILE_S,
+    cold_compile_goal,
+    fresh_process,
+)
+from render_readme import (  # noqa: E402
+    MARKER,
+    README,
+    caption,
+    changed_since,
+    goals_table,
+    markdown,
+    render_one,
+)
 from results import RESULTS, load  # noqa: E402
 
 # Tables that only a full run fills (peers are not run by --quick).
@@ -95,3 +108,47 @@ def test_caption_says_what_a_reader_must_know():
     piped = {"columns": ["|x|"], "align": "l", "rows": [["a | b"]]}
     assert markdown(piped) == "| \\|x\\| |\n| --- |\n| a \\| b |"
     assert json.loads(json.dumps(table)) == table
+
+
+def test_goals_table_shows_each_figure_beside_its_goal_met_or_not():
+    goals = [
+        {"figure": "a", "measured": "1 s", "success": "", "goal": "< 2 s", "met": True},
+        {"figure": "b", "measured": "3 s", "success": "99.0%", "goal": "< 2 s", "met": False},
+        {"figure": "c", "measured": "(--quick)", "success": "", "goal": "< 2 s", "met": None},
+    ]
+    table = goals_table(goals)
+    assert table["columns"][3:] == ["goal", "met / not met"]
+    assert [r[3:] for r in table["rows"]] == [
+        ["< 2 s", "met"],
+        ["< 2 s", "**not met**"],
+        ["< 2 s", "not measured"],
+    ]
+
+
+def test_compile_from_cold_is_the_first_call_minus_the_second():
+    limit = f"< {GOAL_COLD_COMPILE_S:.2f} s"
+    fast = cold_compile_goal("f", {"first_s": 4.5, "second_s": 0.5})
+    assert (fast.measured, fast.goal, fast.met) == ("4.00 s", limit, True)
+    slow = cold_compile_goal("f", {"first_s": 5.5, "second_s": 0.25})
+    assert (slow.measured, slow.met) == ("5.25 s", False)
+    unsolved = cold_compile_goal("f", {"first_s": 1.0, "second_s": 0.5}, success=0.5)
+    assert unsolved.met is False and unsolved.success == "50.0%"
+    assert cold_compile_goal("f", None).met is False  # the fresh process failed
+    skipped = cold_compile_goal("f", None, "--quick")
+    assert skipped.met is None and skipped.measured == "(--quick)"
+
+
+def test_fresh_process_runs_without_the_compilation_cache():
+    """What a compile-from-cold figure stands on: a new interpreter with benchmarks/ on its
+    path, JAX as asked and no persistent compilation cache; a failure is None."""
+    code = (
+        "import os, jax\n"
+        "from common import print_first_and_second\n"
+        "print_first_and_second(lambda: jax.numpy.zeros(2), x64=jax.config.jax_enable_x64,\n"
+        "    cache=os.environ.get('JAX_ENABLE_COMPILATION_CACHE'),\n"
+        "    cache_dir=os.environ.get('JAX_COMPILATION_CACHE_DIR'))"
+    )
+    line = fresh_process(code, "cpu", x64=True)
+    assert line is not None and line["first_s"] >= 0 and line["second_s"] >= 0
+    assert line["x64"] is True and line["cache"] == "false" and line["cache_dir"] is None
+    assert fresh_process("raise SystemExit(3)", "cpu") is None
