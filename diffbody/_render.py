@@ -81,6 +81,10 @@ def shade(
         (h, w, 4) float RGBA, rows bottom-up; (left, right, bottom, top), m, for `imshow`.
     """
     to_camera, right, up, _ = camera(view)
+    drawn = np.all(np.isfinite(centers), axis=1) & (radii > 0)  # nothing to draw otherwise
+    centers, radii, colours = centers[drawn], radii[drawn], colours[drawn]
+    if not len(radii):
+        raise ValueError("shade: no sphere with a finite center and a positive radius")
     xy = np.stack([centers @ right, centers @ up], axis=-1)
     depth = centers @ to_camera
     lo = (xy - radii[:, None]).min(0)

@@ -72,6 +72,17 @@ def test_shade_is_a_depth_buffer(n, seed, view):
     assert np.all(image[inside, 3] == 1.0) and np.all(image[outside, 3] == 0.0)
 
 
+def test_shade_skips_what_cannot_be_drawn():
+    centers, radii, colours = _spheres(4, 0)
+    image, extent = db._render.shade(centers, radii, colours, "front", 300.0)
+    centers = np.concatenate([centers, [[np.nan, 0.0, 0.0], [0.0, 0.0, 0.0]]])
+    radii, colours = np.append(radii, [0.1, 0.0]), np.concatenate([colours, np.ones((2, 3))])
+    again, same = db._render.shade(centers, radii, colours, "front", 300.0)
+    assert same == extent and np.array_equal(image, again)
+    with pytest.raises(ValueError, match="no sphere"):
+        db._render.shade(centers[-2:], radii[-2:], colours[-2:], "front", 300.0)
+
+
 def test_shade_lights_the_upper_left_and_keeps_the_colour():
     """One sphere seen from the front: brightest toward the light (upper left of the
     screen), darkest at the lower right rim, in the sphere's own hue."""
