@@ -7,6 +7,7 @@ jax.jit / jax.vmap / jax.grad. Batching is jax.vmap over poses (or bodies).
 import functools
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -23,6 +24,7 @@ from ._rotations import (
     exp_rotvec,
     matmul3,
     matvec3,
+    right_jacobian,
     rotate_about_z,
     swing_rotation,
     twist_about_z,
@@ -120,8 +122,14 @@ def socket_frames_from_swing(
     about its own Z by the table's twist relative to it, read off at the same direction.
     """
     idx = np.arange(body.n_segments) if idx is None else np.asarray(idx)
-    kinds = [body.standard_kind[i] for i in idx]
     R = matmul3(body.R_socket_rest[idx], exp_swing(swing))
+    return twist_about_z(R, _table_twists(body, idx, R))
+
+
+def _table_twists(body: Body, idx: np.ndarray, R: Array) -> Array:
+    """(k,) the twist about Z that turns frames R (k, 3, 3) of segments `idx` into their
+    limb tables' frames at the same direction; 0 for the swing default."""
+    kinds = [body.standard_kind[i] for i in idx]
     # The table twists are gathered into one angle per segment and applied once: an
     # in-place `R.at[k].set(f(R[k]))` was miscompiled by XLA on CPU when fused with a
     # later scatter (frames off by 1e-4 rad under jit, exact eagerly).
@@ -131,7 +139,31 @@ def socket_frames_from_swing(
         theta, phi, _ = vector_to_azimuth_polar(R[k, :, 2])
         M = matmul3(jnp.swapaxes(R[k], -1, -2), standard_frame(theta, phi, limb))
         twist = twist.at[k].set(jnp.arctan2(M[:, 1, 0], M[:, 0, 0]))
-    return twist_about_z(R, twist)
+    return twist
+
+
+def socket_rates_from_swing(
+    body: Body, swing: Float[Array, "k 2"], idx: np.ndarray
+) -> Float[Array, "2 k 3"]:
+    """Body rates vee(R^T dR) of `socket_frames_from_swing`'s frames R per unit of w_x and
+    of w_y, in closed form: R_rest exp(w) turns at J_r(w) dw (the right Jacobian); a limb
+    with a table then turns about its own Z by its table twist t(w), which rotates that rate
+    by Rz(t)^T and adds dt about Z (dt by forward mode through the table alone)."""
+    idx = np.asarray(idx)
+    w3 = jnp.concatenate([swing, jnp.zeros_like(swing[:, :1])], axis=-1)
+    rates = jnp.moveaxis(right_jacobian(w3)[:, :, :2], -1, 0)  # (2, k, 3)
+    if all(body.standard_kind[i] == "swing" for i in idx):
+        return rates
+    R_rest = body.R_socket_rest[idx]
+
+    def twists(w):
+        return _table_twists(body, idx, matmul3(R_rest, exp_swing(w)))
+
+    units = jnp.eye(2, dtype=swing.dtype)[:, None, :] * jnp.ones_like(swing)
+    t, dt = jax.vmap(lambda u: jax.jvp(twists, (swing,), (u,)))(units)
+    c, s = jnp.cos(t[0]), jnp.sin(t[0])
+    x, y, z = rates[..., 0], rates[..., 1], rates[..., 2]
+    return jnp.stack([c * x + s * y, c * y - s * x, z + dt], axis=-1)
 
 
 def place_on_segments(

@@ -86,6 +86,21 @@ def exp_rotvec(v: Float[ArrayLike, "*b 3"]) -> Float[Array, "*b 3 3"]:
     return jnp.eye(3, dtype=v.dtype) + s * K + c * matmul3(K, K)
 
 
+def right_jacobian(v: Float[ArrayLike, "*b 3"]) -> Float[Array, "*b 3 3"]:
+    """The right Jacobian of exp at v: vee(exp(v)^T d exp(v)) = J_r(v) dv, the body rate
+    of a rotation vector's rate, I - (1 - cos a) / a^2 [v]x + (a - sin a) / a^3 [v]x^2;
+    smooth at v = 0 (series, as `exp_rotvec`)."""
+    v = jnp.asarray(v)
+    a2 = jnp.sum(v * v, axis=-1)[..., None, None]
+    small = a2 < jnp.sqrt(eps_for(a2))
+    safe = jnp.where(small, 1.0, a2)
+    a = jnp.sqrt(safe)
+    c = jnp.where(small, 0.5 - a2 / 24.0, (1.0 - jnp.cos(a)) / safe)
+    d = jnp.where(small, 1.0 / 6.0 - a2 / 120.0, (a - jnp.sin(a)) / (safe * a))
+    K = skew(v)
+    return jnp.eye(3, dtype=v.dtype) - c * K + d * matmul3(K, K)
+
+
 def matmul3(
     a: Float[ArrayLike, "*#b 3 3"], b: Float[ArrayLike, "*#b 3 3"]
 ) -> Float[Array, "*b 3 3"]:

@@ -27,6 +27,7 @@ from .._kinematics import (
     exp_swing,
     place_on_segments,
     socket_frames_from_swing,
+    socket_rates_from_swing,
     spine_deviation,
     twist_fraction,
 )
@@ -196,9 +197,14 @@ def _unit_rates(problem, x: Array) -> tuple[Array, Array, Array]:
     w, tau, spine, root = problem.state(x)
     m, dtype = lay.chain.size, tau.dtype
     rates, twists = [], []
-    r, t = _part_rates(problem, swing_frames, w, np.eye(2)[:, None, :] * np.ones((m, 1)))
+    # The swings in closed form (each row's own w moves only its own frame).
+    k = np.asarray(sorted(set(lay.swing_x + lay.swing_y + lay.twist)), int)
+    r = jnp.zeros((2, m, 3), dtype)
+    if k.size:
+        seg = np.asarray(lay.chain.segments, int)[k]
+        r = _spread(m, k, socket_rates_from_swing(problem.body, w[k], seg))
     rates.append(r)
-    twists.append(t)
+    twists.append(jnp.zeros((2, m), dtype))
     # A unit of every state twist turns every segment whose twist is the state's.
     own_twist = np.ones(m)
     own_twist[list(lay.spine)] = 0.0
