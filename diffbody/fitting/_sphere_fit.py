@@ -1,7 +1,8 @@
 """Fitting a posture and a body's dimensions to a measured sphere cloud (`fit_spheres`,
 `fit_spheres_batch`; docs/design.md, section 7).
 
-Expectation-maximisation with annealing: one optimistix Levenberg-Marquardt solve per stage
+Expectation-maximisation with annealing, from the start that `_cloud_start` searches for
+when the correspondences are unknown: one Levenberg-Marquardt solve (`_solver`) per stage
 of `STAGES` (`KNOWN_STAGES` with correspondences), each started where the previous one ended.
 At a stage's start the correspondences and robust weights are fixed with the model spheres
 where they are (`_sphere_residuals.pairs_at`), at the stage's temperature T and loss scale c;
@@ -16,14 +17,13 @@ import dataclasses
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from .._batches import chunk_rows, map_chunks
 from .._body import Body, Pose, without_names
-from .._progress import Progress
-from .._solver import FitStatus
+from .._solver import FitStatus, least_squares_solver, solve
+from ._cloud_start import search_start, search_tables
 from ._clouds import check_correspondences, check_spheres
 from ._sphere_residuals import (
     FIT_NAMES,
@@ -41,6 +41,10 @@ from ._sphere_residuals import (
 )
 
 INLIER_DISTANCE = 0.03  # m: a measured sphere this close to its model sphere is an inlier
+# A fit lands when at least this share of the measured spheres are inliers: a landed fit of a
+# cloud with 10 % outliers keeps ~90 %, one with a limb left on the wrong side ~50-80 %. A
+# cloud with more outliers than 1 - LANDED_INLIERS reads as not landed.
+LANDED_INLIERS = 0.75
 STIFF = 10.0  # pull (m per unit of an unknown) that holds an unknown during a stage
 PULL = 1e-4  # the weak pull toward the stage's start on the moving unknowns
 # Per stage: temperature T (m), loss scale c (m), what moves (0 the whole body's placement,
@@ -64,11 +68,6 @@ KNOWN_STAGES = ((0.0, 0.30, 0, False), (0.0, 0.10, 2, False), (0.0, INLIER_DISTA
 KNOWN_STEPS = 40
 
 
-# The damped normal equations by Cholesky (the pulls and the damping keep them well posed):
-# the stage problems are ~100 unknowns against ~3,000 rows.
-LINEAR_SOLVER = lx.Normal(lx.Cholesky())
-
-
 _Arr = Array | np.ndarray  # NumPy arrays from fit_spheres_batch
 
 
@@ -83,7 +82,9 @@ class SphereFit(eqx.Module):
     residuals: Float[_Arr, "*b m"]  # m: (centre, radius) distance of each measured sphere
     # to its matched model sphere (to the nearest one without correspondences)
     inliers: Bool[_Arr, "*b m"]  # residual below INLIER_DISTANCE
-    status: Int[_Arr, "*b"]  # a FitStatus
+    landed: Bool[_Arr, "*b"]  # at least LANDED_INLIERS of the spheres are inliers
+    status: Int[_Arr, "*b"]  # a FitStatus: CONVERGED only when landed (a fit that settled
+    # with a limb on the wrong part of the cloud is NOT_CONVERGED, `landed` False)
     steps: Int[_Arr, "*b"]  # solver steps over all stages
 
     @property
@@ -119,10 +120,17 @@ def aligned(template: Body, lay: FitLayout, init: Pose, cloud: Cloud) -> Pose:
     return dataclasses.replace(init, position=init.position + offset)
 
 
+def searched(template: Body, lay: FitLayout, init: Pose, cloud: Cloud, tables) -> Pose:
+    """Where `_cloud_start.search_start` puts `init` (the standard position) on the cloud."""
+    rest = make_start(template, lay, init)
+    x, _ = search_start(rest, lay, cloud, tables)
+    return rest.problem.pose(x, init)
+
+
 def fit_cloud(template: Body, lay: FitLayout, init: Pose, cloud: Cloud, align: Array):
-    """The annealed fit of one cloud (module docstring): (the pose free vector and log
-    scales, the residual distances (m,), status, steps). `align`: first move the start by
-    the cloud's median offset."""
+    """The annealed fit of one cloud (module docstring) from `init`: (the pose, log axial
+    and radial scales, the residual distances (m,), status, steps). `align`: first move
+    the start by the cloud's median offset."""
     init = jax.tree.map(
         lambda a, b: jnp.where(align, a, b), aligned(template, lay, init, cloud), init
     )
@@ -133,40 +141,59 @@ def fit_cloud(template: Body, lay: FitLayout, init: Pose, cloud: Cloud, align: A
         z, ok, steps, _ = carry
         T, c, pull, tol = xs
         pairs = pairs_at(cloud, model_spheres(start, lay, z), T, c)
-        solver = optx.LevenbergMarquardt(rtol=tol, atol=tol, linear_solver=LINEAR_SOLVER)
-        sol = optx.least_squares(
+        out = solve(
             stage_residuals,
-            solver,
+            least_squares_solver(tol),
             z,
             (start, lay, pairs, z, pull),
-            max_steps=KNOWN_STEPS if cloud.known else STEPS,
-            throw=False,
+            KNOWN_STEPS if cloud.known else STEPS,
         )
-        finite = jnp.all(jnp.isfinite(sol.value))
         # Converged: the solve met its tolerance, or the stage (a whole EM round at the
         # end) moved no unknown by more than 100x the tolerance (float32 rarely meets
         # Levenberg-Marquardt's own test in a few steps once the answer is found).
-        still = jnp.max(jnp.abs(sol.value - z)) <= 100 * tol
-        done = (sol.result == optx.RESULTS.successful) | still
-        z = jnp.where(finite, sol.value, z)
-        return (z, ok & finite, steps + sol.stats["num_steps"], done), None
+        still = jnp.max(jnp.abs(out.value - z)) <= 100 * tol
+        done = (out.status == FitStatus.CONVERGED) | still
+        ok = ok & (out.status != FitStatus.FAILED)
+        return (out.value, ok, steps + out.steps, done), None
 
     carry = (z_start, jnp.asarray(True), jnp.asarray(0), jnp.asarray(False))
     (z, ok, steps, done), _ = jax.lax.scan(stage, carry, schedule(lay, cloud.known, z_start.dtype))
     z = jnp.where(ok, z, z_start)
-    status = jnp.where(
-        ok, jnp.where(done, FitStatus.CONVERGED, FitStatus.NOT_CONVERGED), FitStatus.FAILED
-    )
     x, log_axial, log_radial = lay.split(z, start)
     model = model_spheres(start, lay, z)
     distances = residual_distances(cloud, squared_distances(cloud.measured, model))
+    landed = jnp.mean(distances < INLIER_DISTANCE) >= LANDED_INLIERS
+    status = jnp.where(
+        ok,
+        jnp.where(done & landed, FitStatus.CONVERGED, FitStatus.NOT_CONVERGED),
+        FitStatus.FAILED,
+    )
     pose = start.problem.pose(x, init)
     return pose, log_axial, log_radial, distances, status, steps
 
 
-# One compiled fit per (body structure, layout, cloud size); the batch one per chunk size.
-_fit_jit = eqx.filter_jit(fit_cloud)
-_fit_many_jit = eqx.filter_jit(eqx.filter_vmap(fit_cloud, in_axes=(None, None, None, 0, None)))
+def fit_one(template, lay, init, cloud, align, tables):
+    """`fit_cloud`, from the searched start when `tables` (static) is not None."""
+    if tables is not None:
+        init, align = searched(template, lay, init, cloud, tables), False
+    return fit_cloud(template, lay, init, cloud, jnp.asarray(align))
+
+
+def fit_many(template, lay, init, clouds, align, tables):
+    """`fit_one` of a chunk of clouds: the searches one after the other (`lax.map`: a vmap
+    of the search's vmapped candidates trips XLA's dot simplifier, and one search already
+    fills the cores), the fits vmapped."""
+    inits = None
+    if tables is not None:
+        inits = jax.lax.map(lambda c: searched(template, lay, init, c, tables), clouds)
+        init, align = inits, False
+    fit = eqx.filter_vmap(fit_cloud, in_axes=(None, None, None if inits is None else 0, 0, None))
+    return fit(template, lay, init, clouds, jnp.asarray(align))
+
+
+# One compiled fit per (body structure, layout, cloud size, start); the batch one per chunk.
+_fit_jit = eqx.filter_jit(fit_one)
+_fit_many_jit = eqx.filter_jit(fit_many)
 
 
 # --- the public functions ------------------------------------------------------------------
@@ -183,12 +210,16 @@ def _fit_names(fit) -> tuple[str, ...]:
 
 def _prepare(body: Body, centers, radii, correspondences, fit, init: Pose | None, batch: bool):
     """The host's part of a fit, every argument checked: (template, layout, start pose,
-    measured spheres (..., m, 4), correspondences or None)."""
-    layout = fit_layout(body, _fit_names(fit))
+    measured spheres (..., m, 4), correspondences or None, the start search's tables or
+    None: searched without correspondences from no `init` when the pose moves)."""
+    fit = _fit_names(fit)
+    layout = fit_layout(body, fit)
     measured = check_spheres(centers, radii, batch=batch)
     match = check_correspondences(correspondences, measured.shape[:-1], len(body.sphere_radii))
     start = body.rest_pose() if init is None else init
-    return without_names(body), layout, start, measured, match
+    search = init is None and match is None and "pose" in fit
+    tables = search_tables(body, layout) if search else None
+    return without_names(body), layout, start, measured, match, tables
 
 
 def _cloud(dtype, measured: np.ndarray, match: np.ndarray | None) -> Cloud:
@@ -202,6 +233,7 @@ def _cloud(dtype, measured: np.ndarray, match: np.ndarray | None) -> Cloud:
 
 def _result(body: Body, template: Body, out) -> SphereFit:
     pose, log_axial, log_radial, distances, status, steps = out
+    inliers = distances < INLIER_DISTANCE
     fitted = jax.vmap(scaled, in_axes=(None, 0, 0)) if log_axial.ndim == 2 else scaled
     # Named before scaling: a batch of bodies is no valid argument of Body's constructor.
     name = dict(name=f"{body.name}-fitted", source="diffbody.fit_spheres")
@@ -212,7 +244,8 @@ def _result(body: Body, template: Body, out) -> SphereFit:
         axial=jnp.exp(log_axial),
         radial=jnp.exp(log_radial),
         residuals=distances,
-        inliers=distances < INLIER_DISTANCE,
+        inliers=inliers,
+        landed=jnp.mean(inliers, axis=-1) >= LANDED_INLIERS,
         status=status,
         steps=steps,
     )
@@ -236,19 +269,20 @@ def fit_spheres(
     is, -1 for none (an outlier); None when unknown (annealed soft assignment, module
     docstring). fit: which unknowns move, a subset of ("pose", "lengths", "radii"):
     "lengths" are the axial and "radii" the radial scale factors of `SCALE_GROUPS` (left
-    and right share one); the rest stays as in `init` (the standard position when None,
-    moved onto the cloud by its median offset) and at unit scale. The whole body faces
-    +X in the standard position: give an `init` facing the cloud's way when it faces
-    another.
+    and right share one); the rest stays as in `init` and at unit scale. init None: the
+    standard position, searched for over the whole body's heading and the limbs' postures
+    without correspondences (`_cloud_start`), moved onto the cloud by its median offset
+    with them.
 
     Returns a `SphereFit`: the scaled body, the pose (its spine as a Bendspine target),
-    the scale factors, each measured sphere's residual distance and inlier flag, a status.
+    the scale factors, each measured sphere's residual distance and inlier flag, whether
+    the fit landed (`LANDED_INLIERS`) and a status (CONVERGED only when landed).
     """
-    template, lay, start, measured, match = _prepare(
+    template, lay, start, measured, match, tables = _prepare(
         body, centers, radii, correspondences, fit, init, batch=False
     )
     cloud = _cloud(template.lengths.dtype, measured, match)
-    out = _fit_jit(template, lay, start, cloud, jnp.asarray(init is None))
+    out = _fit_jit(template, lay, start, cloud, init is None, tables)
     return _result(body, template, out)
 
 
@@ -272,21 +306,23 @@ def fit_spheres_batch(
     """
     if not (isinstance(chunk_size, int) and chunk_size >= 1):
         raise ValueError(f"chunk_size: expected an integer >= 1, got {chunk_size!r}")
-    template, lay, start, measured, match = _prepare(
+    template, lay, start, measured, match, tables = _prepare(
         body, centers, radii, correspondences, fit, init, batch=True
     )
-    total = measured.shape[0]
-    chunk = min(chunk_size, total)
-    bar = Progress(total, progress, "fit")
-    outs = []
-    for lo in range(0, total, chunk):
-        rows = np.minimum(np.arange(lo, lo + chunk), total - 1)  # pad with the last cloud
-        cloud = _cloud(
-            template.lengths.dtype, measured[rows], None if match is None else match[rows]
-        )
-        out = _fit_many_jit(template, lay, start, cloud, jnp.asarray(init is None))
-        outs.append(jax.tree.map(lambda a: np.asarray(a)[: min(chunk, total - lo)], out))
-        bar.update(min(lo + chunk, total))
-    out = jax.tree.map(lambda *a: np.concatenate(a), *outs)
+    dtype = template.lengths.dtype
+    none = np.full(measured.shape[:-1], -1, np.int32)
+    known = match is not None
+
+    def run(measured, match):
+        cloud = Cloud(measured=measured.astype(dtype), match=match, known=known)
+        return _fit_many_jit(template, lay, start, cloud, init is None, tables)
+
+    out = map_chunks(
+        run,
+        (measured, none if match is None else match),
+        chunk=chunk_rows(chunk_size, measured.shape[0]),
+        progress=progress,
+        label="fit",
+    )
     result = _result(body, template, out)
     return jax.tree.map(lambda a: np.asarray(a) if eqx.is_array(a) else a, result)

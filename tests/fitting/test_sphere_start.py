@@ -1,0 +1,95 @@
+"""The start search of a sphere-cloud fit without correspondences
+(diffbody.fitting._cloud_start) and how a fit that cannot land says so."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import diffbody as db
+from diffbody.anthropometry._scaling import per_segment
+from diffbody.fitting._cloud_start import search_spheres, search_tables
+from diffbody.fitting._sphere_fit import LANDED_INLIERS
+from diffbody.fitting._sphere_residuals import FIT_NAMES, fit_layout
+
+SPREAD = 0.3  # posture spread, as a user's clouds (benchmarks/_sphere_cloud.py)
+LANDED = 0.002  # m: a fit lands when its mean segment-length error is below this
+
+
+def person_cloud(body, seed: int, turn: float | None):
+    """A scaled person (group factors exp(N(0, 0.05^2))) at posture spread 0.3, measured
+    with 5 mm noise and 10 % outliers: (centers, radii, segment lengths). turn: the whole
+    body turned about the vertical through the cloud's median by this angle (rad) from
+    facing +X; None: any angle, as `sample_pose` draws it."""
+    key = jax.random.PRNGKey(seed)
+    g = len(db.SCALE_GROUPS)
+    k_ax, k_ra, k_pose, k_cloud = jax.random.split(key, 4)
+    axial = jnp.exp(0.05 * jax.random.normal(k_ax, (g,)))
+    radial = jnp.exp(0.05 * jax.random.normal(k_ra, (g,)))
+    person = db.scale_body(body, per_segment(body, axial), per_segment(body, radial))
+    pose = db.sample_pose(body, k_pose, spread=SPREAD, turn=np.pi if turn is None else 0.0)
+    centers, radii, _ = db.synthetic_cloud(person, pose, k_cloud, 0.005, 0.1)
+    centers = np.asarray(centers)
+    if turn is not None:
+        c, s = np.cos(turn), np.sin(turn)
+        Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        middle = np.median(centers, axis=0)
+        centers = (centers - middle) @ Rz.T + middle
+    return centers, np.asarray(radii), np.asarray(person.lengths)
+
+
+@pytest.fixture(scope="module")
+def fits(male50):
+    """One batch, one compiled program: a person turned 180 degrees, one turned any way,
+    and a cloud that is no body (spheres drawn in a box): (fit, true lengths)."""
+    clouds = [person_cloud(male50, 3, np.pi), person_cloud(male50, 4, None)]
+    rng = np.random.default_rng(0)
+    m = len(clouds[0][1])
+    box = rng.uniform([-0.5, -0.5, 0.0], [0.5, 0.5, 1.8], (m, 3))
+    clouds.append((box, rng.uniform(0.01, 0.08, m), clouds[0][2]))
+    centers, radii, lengths = (np.stack(a) for a in zip(*clouds))
+    fit = db.fit_spheres_batch(male50, centers, radii, chunk_size=3, progress=False)
+    return fit, lengths
+
+
+def length_error(fit, lengths, i) -> float:
+    keep = lengths[i] > 0
+    return float(np.mean(np.abs(np.asarray(fit.body.lengths[i]) - lengths[i])[keep]))
+
+
+@pytest.mark.parametrize("i, what", [(0, "turned 180 degrees"), (1, "turned any way")])
+def test_a_person_turned_away_lands_without_correspondences(fits, i, what):
+    """Spread 0.3, 5 mm noise, 10 % outliers, no correspondences, no `init`: the search
+    finds the heading and the limbs, the fit lands (mean length error < 2 mm) and says so."""
+    fit, lengths = fits
+    error = length_error(fit, lengths, i)
+    assert error < LANDED, f"{what}: mean segment-length error {1e3 * error:.2f} mm"
+    assert fit.landed[i] and fit.status[i] == db.FitStatus.CONVERGED
+    assert np.mean(fit.inliers[i]) >= LANDED_INLIERS
+
+
+def test_a_cloud_that_is_no_body_is_reported_as_not_landed(fits):
+    """Spheres drawn in a box: no start lands, and the result says so (few inliers, not
+    landed, never CONVERGED), with finite numbers."""
+    fit, _ = fits
+    assert not fit.landed[2]
+    assert fit.status[2] != db.FitStatus.CONVERGED
+    assert np.mean(fit.inliers[2]) < LANDED_INLIERS
+    assert np.all(np.isfinite(fit.residuals[2])) and np.all(np.isfinite(fit.axial[2]))
+
+
+def test_the_search_tables(male50):
+    """Each group's grid starts at the current values, holds every point of its 3^k grid
+    once, and moves only its own free components; the compared spheres cover every segment
+    that carries a sphere."""
+    lay = fit_layout(male50, FIT_NAMES)
+    index, grid, keep = (np.asarray(t) for t in search_tables(male50, lay))
+    assert np.all(grid[:, 0] == 0)
+    for cols, offsets in zip(index, grid):
+        k = len(set(cols.tolist()))
+        points = {tuple(np.sign(o[:k])) for o in offsets}
+        assert len(points) == 3**k
+        assert np.all(offsets[:, k:] == 0)
+    seg = np.asarray(male50.sphere_segment)
+    assert set(seg[keep]) == set(seg)
+    assert np.array_equal(keep, search_spheres(male50))
