@@ -12,6 +12,7 @@ import dataclasses
 import difflib
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -179,10 +180,7 @@ class Body(eqx.Module):
         """The standard position: upright, feet flat on the ground (z = 0), toes forward,
         arms at the sides with palms toward the thighs, the root joint above the world
         origin, facing +X."""
-        d = self.R_socket_rest[:, :, 2]
-        theta, phi, _ = vector_to_azimuth_polar(d)
-        angles = jnp.stack([theta, phi, jnp.zeros_like(theta)], axis=-1)
-        return Pose(position=self.rest_position, angles=angles)
+        return _rest_pose(self.R_socket_rest, self.rest_position)
 
     def with_root(self, joint: str) -> "Body":
         """The same body placed by another joint (seed 000: "any other joint may be
@@ -232,3 +230,11 @@ def without_names(body: Body) -> Body:
     """The body without its name and source, static fields no kernel reads: every body of one
     structure then shares one compiled function (fits, rendering, descriptors)."""
     return dataclasses.replace(body, name="", source="")
+
+
+@jax.jit
+def _rest_pose(R_socket_rest: Array, rest_position: Array) -> Pose:
+    """`Body.rest_pose`, compiled once (eagerly it is a dozen small programs)."""
+    theta, phi, _ = vector_to_azimuth_polar(R_socket_rest[:, :, 2])
+    angles = jnp.stack([theta, phi, jnp.zeros_like(theta)], axis=-1)
+    return Pose(position=rest_position, angles=angles)

@@ -26,6 +26,12 @@ from ._schema import (
 )
 
 
+def _array(values) -> jnp.ndarray:
+    """A device array of JAX's default float type, built in NumPy and moved once (jnp
+    arithmetic on freshly loaded values compiles a small program per operation)."""
+    return jnp.asarray(np.asarray(values, dtype=jnp.result_type(float)))
+
+
 def load_spine(path: str | Path | None = None) -> Spine:
     """Load and validate a spine database (default: data/spine.json; schema
     "diffbody.spine/1", data/SCHEMA.md).
@@ -138,10 +144,10 @@ def load_spine(path: str | Path | None = None) -> Spine:
         initiator=names.index(initiator),
         segment_names=tuple(r["segment"] for r in rows),
         vertebra_names=tuple(expected),
-        rest=jnp.asarray(np.stack([r["rest"] for r in rows])),
-        lower=jnp.asarray([r["lower"] for r in rows]),
-        upper=jnp.asarray([r["upper"] for r in rows]),
-        disc_heights=jnp.asarray([r["disc"] for r in rows]) / 1000.0,
-        flexion_axis_offsets=jnp.asarray([r["offset"] for r in rows]) / 1000.0,
-        vertebra_sizes=jnp.asarray(np.reshape(sizes, (-1, 3))) / 1000.0,
+        rest=_array(np.stack([r["rest"] for r in rows])),
+        lower=_array([r["lower"] for r in rows]),
+        upper=_array([r["upper"] for r in rows]),
+        disc_heights=_array(np.asarray([r["disc"] for r in rows]) / 1000.0),
+        flexion_axis_offsets=_array(np.asarray([r["offset"] for r in rows]) / 1000.0),
+        vertebra_sizes=_array(np.reshape(sizes, (-1, 3)) / 1000.0),
     )

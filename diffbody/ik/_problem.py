@@ -322,6 +322,7 @@ def reach_bound(body: Body, layout: Layout, links: Links) -> tuple[np.ndarray, n
         own = lengths[seg]
         if index >= n_j:
             sph = body.feature_sphere[index - n_j]
-            own = float(np.linalg.norm(body.sphere_origins[sph]) + body.sphere_radii[sph])
+            origin, radius = (np.asarray(a)[sph] for a in (body.sphere_origins, body.sphere_radii))
+            own = float(np.linalg.norm(origin) + radius)
         bound.append(sum(lengths[s] for s in path if s != seg) + (own if seg in live else 0.0))
     return np.asarray(anchor).reshape(-1, 3), np.asarray(bound)
