@@ -6,12 +6,15 @@
 The problem is the first attempt of `diffbody.solve_reach` on one palm target
 (`left_hand.palm`) with the default unknowns: the limbs' phase (the left clavicle, upper arm,
 forearm and hand free within their limits, the rest held in the standard position), from
-the first start (the standard position), `--max-steps` steps (30, solve_reach's default),
-tolerances 1 mm and 1 degree. It is built and solved by diffbody's own `solve_free`, with
-only the solver swapped:
+the first start (the closed-form limb start from the standard position), `--max-steps`
+steps (30, solve_reach's default; 8 shows what one round of polishing reaches), tolerances
+1 mm and 1 degree. It is built and solved by diffbody's own `solve_free`, with only the
+solver swapped:
 
-- diffbody: `reach_solver`, optimistix's Levenberg-Marquardt that also stops as soon as
-  every target row is within a hundredth of its tolerance (what solve_reach runs);
+- diffbody: `reach_solver`, optimistix's Levenberg-Marquardt with the damped normal
+  equations by Cholesky, which also stops as soon as every target row is within a
+  hundredth of its tolerance (what solve_reach runs);
+- the same with optimistix's default linear solve (QR);
 - Levenberg-Marquardt: plain `optx.LevenbergMarquardt`, the same rtol and atol;
 - Gauss-Newton, Dogleg: `optx.GaussNewton`, `optx.Dogleg`, the same rtol and atol.
 
@@ -52,12 +55,17 @@ def limbs_problem(body, xyz0):
 
 
 def solvers(dtype) -> dict[str, optx.AbstractLeastSquaresSolver]:
+    import lineax as lx
+
+    from diffbody._solver import least_squares_solver
     from diffbody.ik._attempt import reach_solver
 
     reach = reach_solver(dtype)
     tol = {"rtol": reach.rtol, "atol": reach.atol}
+    qr = lx.AutoLinearSolver(well_posed=None)
     return {
         "diffbody (LM, early stop)": reach,
+        "LM, early stop, QR": least_squares_solver(reach.rtol, early_stop=True, linear_solver=qr),
         "Levenberg-Marquardt": optx.LevenbergMarquardt(**tol),
         "Gauss-Newton": optx.GaussNewton(**tol),
         "Dogleg": optx.Dogleg(**tol),
@@ -66,7 +74,7 @@ def solvers(dtype) -> dict[str, optx.AbstractLeastSquaresSolver]:
 
 def batch_solve(body, layout, ts, solver, max_steps: int):
     """fn(xyz (n, 3)) -> (poses, steps (n,)): the limbs' solve of each palm target from the
-    standard position."""
+    closed-form limb start (the standard position elsewhere)."""
     import equinox as eqx
 
     from diffbody.ik._attempt import assess, solve_free
@@ -74,11 +82,14 @@ def batch_solve(body, layout, ts, solver, max_steps: int):
     dtype = body.lengths.dtype
     init = body.rest_pose()
     tols = (jnp.asarray(1e-3, dtype), jnp.asarray(np.deg2rad(1.0), dtype))
-    start = jnp.asarray(0)
+    start, fresh = jnp.asarray(0), jnp.asarray(True)
+    x0 = jnp.zeros(layout.n_free, dtype)
 
     def one(xyz):
         targets = eqx.tree_at(lambda t: t.point_xyz, ts, xyz[None].astype(dtype))
-        x, steps = solve_free(body, layout, init, targets, start, max_steps, *tols, solver=solver)
+        x, steps, _ = solve_free(
+            body, layout, init, targets, x0, start, fresh, max_steps, *tols, True, solver
+        )
         return assess(body, layout, init, targets, x, steps, *tols).pose, steps
 
     return jax.vmap(one)
@@ -110,7 +121,7 @@ def main() -> None:
     names = ", ".join(body.segment_names[s] for s in moving)
     print(
         f"problem: {EFFECTOR}, the limbs' phase ({names}; {layout.n_free} unknowns), "
-        f"from the standard position, {args.max_steps} steps"
+        f"from the closed-form limb start, {args.max_steps} steps"
     )
     print(f"targets: {n:,} palm positions of random in-limit left-arm poses (seed {SEED})")
     run = start_run("solvers", args, targets=n, seed=SEED, max_steps=args.max_steps)

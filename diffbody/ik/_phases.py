@@ -5,12 +5,15 @@ A solve runs in phases, as a person reaches: first the limbs (every unknown belo
 trunk: clavicle, arm, hand; thigh, shank, foot; the head on the neck), with the spine, the
 pelvis and the whole body held as in `init`; only if that misses, the trunk joins (the
 spine as its Bendspine target, the root's placement when free), starting from the limbs'
-closest reach. Within a phase, starts are tried in turn (`init` first, then the fixed
-points of `_starts`) until every target is reached, unless the target lies beyond the
-phase's reach bound (the sum of its chain's lengths), which decides up front that no start
-can reach it. With concrete inputs the host drives phases and starts (`solve_host`), so only
-what a target needs is compiled or run; under a JAX transformation (`solve_traced`) the
-starts run side by side and the kept attempt is selected with `jnp.where`.
+closest reach. Within a phase, starts are tried in turn (the closed-form limb start or the
+start pose first, then the fixed points of `_starts`), each in rounds (`_attempt`), until
+every target is reached, unless a target lies out of the phase's reach (`out_of_reach`),
+which decides up front that no start can reach it: then the phase tries its first start
+only, and a phase that is not the last gives it one round (its answer is only the next
+phase's start). With concrete inputs the host drives phases, starts and rounds
+(`solve_host`), so only what a target needs is run; under a JAX transformation
+(`solve_traced`) the starts run side by side, each one uninterrupted solve, and the kept
+attempt is selected with `jnp.where`.
 """
 
 from collections.abc import Sequence
@@ -23,10 +26,10 @@ from jaxtyping import Array, ArrayLike
 
 from .._body import Body, Pose
 from .._spine import spine_angles
-from ._attempt import assess, attempt, better, no_gradient, solve_free
+from ._attempt import Attempt, assess, attempt_round, better, no_gradient, round_caps, solve_free
 from ._problem import reach_bound, start_links
 from ._targets import TargetSet
-from ._unknowns import Layout, make_layout, path_to_top
+from ._unknowns import Layout, make_layout, path_to_top, point_segment
 
 
 def is_none(x) -> bool:
@@ -94,9 +97,52 @@ def _phase_layouts(body, ts, spine, free_root, segments) -> list[Layout]:
 
 
 def beyond_bound(body: Body, layout: Layout, init: Pose, xyz: ArrayLike) -> np.ndarray:
-    """Whether point targets xyz (..., n_p, 3) lie beyond the phase's reach bound (host)."""
+    """Whether point targets xyz (..., n_p, 3) lie beyond the phase's reach bound, the sum
+    of its chain's lengths (host): what `ReachResult.beyond` reports."""
     links = jax.tree.map(np.asarray, _start_links_jit(body, init)[0])
     anchor, bound = reach_bound(body, layout, links)
+    return _farther(xyz, anchor, bound)
+
+
+def out_of_reach(body: Body, layout: Layout, init: Pose, xyz: ArrayLike) -> np.ndarray:
+    """Whether point targets xyz (..., n_p, 3) lie out of the phase's reach (host): farther
+    from every place the top segment of their chain can put its distal joint than the rest
+    of the chain is long. The top segment swings within its cone (the clavicle by 20
+    degrees), so its distal joint stays on a cap of the sphere around its proximal joint;
+    the rest is bounded by its lengths. A necessary condition for a reach, tighter than
+    `beyond_bound` where the chain hangs from a segment of little swing."""
+    links = jax.tree.map(np.asarray, _start_links_jit(body, init)[0])
+    anchor, bound = reach_bound(body, layout, links)
+    xyz = np.asarray(xyz, float)
+    out = _farther(xyz, anchor, bound)
+    live = set(layout.chain.segments)
+    for j, index in enumerate(layout.points):
+        seg = point_segment(body, index)
+        path = [s for s in path_to_top(body, seg) if s in live]
+        if layout.root or layout.full or len(path) < 2 or not np.isfinite(bound[j]):
+            continue
+        top = path[-1]
+        length = float(body.lengths[top])
+        lo, hi = np.abs(np.asarray(body.swing_lo[top])), np.abs(np.asarray(body.swing_hi[top]))
+        half = min(float(body.swing_max[top]), float(np.hypot(*np.maximum(lo, hi))), np.pi)
+        R_socket = links.R_twisted[int(body.parent[top])] @ np.asarray(body.R_parent_socket[top])
+        centre = R_socket @ np.asarray(body.R_socket_rest[top])[:, 2]
+        with np.errstate(invalid="ignore", over="ignore"):
+            v = xyz[..., j, :] - anchor[j]
+            D = np.linalg.norm(v, axis=-1)
+            cos = np.clip(v @ centre / np.where(D > 0, D, 1.0), -1.0, 1.0)
+            beta = np.arccos(cos)
+            gap = np.where(
+                beta <= half,
+                np.abs(D - length),
+                np.sqrt(np.maximum(D**2 + length**2 - 2 * D * length * np.cos(beta - half), 0)),
+            )
+            out[..., j] |= np.isfinite(D) & (gap > bound[j] - length)
+    return out
+
+
+def _farther(xyz: ArrayLike, anchor: np.ndarray, bound: np.ndarray) -> np.ndarray:
+    """Whether points xyz (..., n_p, 3) lie farther than `bound` (n_p,) from `anchor`."""
     xyz = np.asarray(xyz, float)
     with np.errstate(invalid="ignore", over="ignore"):
         # |xyz - anchor| scaled by its largest component, so 1e30 m does not overflow.
@@ -110,14 +156,33 @@ def beyond_bound(body: Body, layout: Layout, init: Pose, xyz: ArrayLike) -> np.n
 _start_links_jit = eqx.filter_jit(start_links)
 
 
+def phase_plan(
+    body: Body, layouts: list[Layout], phase: int, init: Pose, xyz: ArrayLike, max_steps: int
+) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """For phase `phase` from `init`: per point target whether it is beyond the reach bound
+    (reported) and out of reach (no further start), and the round caps of a start out of
+    reach (one round, unless this is the last phase)."""
+    layout = layouts[phase]
+    beyond = beyond_bound(body, layout, init, xyz)
+    far = out_of_reach(body, layout, init, xyz)
+    caps = round_caps(max_steps)
+    return beyond, far, caps if phase == len(layouts) - 1 else caps[:1]
+
+
 # --- the drivers ------------------------------------------------------------------------
-def _all_starts(body, layout, init, targets, starts: int, max_steps: int, tol_p, tol_a):
-    """Every start side by side: the free vector of the first that reaches (else of the
-    closest) and the steps of all."""
+def _all_starts(
+    body, layout, init, targets, starts: int, max_steps: int, tol_p, tol_a, closed_form: bool
+):
+    """Every start side by side, each one uninterrupted solve: the free vector of the first
+    that reaches (else of the closest) and the steps of all."""
 
     def one(k):
-        x, steps = solve_free(body, layout, init, targets, k, max_steps, tol_p, tol_a)
-        return x, assess(body, layout, init, targets, x, steps, tol_p, tol_a)
+        x0 = jnp.zeros(layout.n_free, tol_p.dtype)
+        tols = (tol_p, tol_a)
+        x, steps, _ = solve_free(
+            body, layout, init, targets, x0, k, jnp.asarray(True), max_steps, *tols, closed_form
+        )
+        return x, assess(body, layout, init, targets, x, steps, *tols)
 
     xs, tries = jax.vmap(one)(jnp.arange(starts))
     k = jnp.where(jnp.any(tries.ok), jnp.argmax(tries.ok), jnp.argmin(tries.cost))
@@ -128,7 +193,7 @@ def _all_starts(body, layout, init, targets, starts: int, max_steps: int, tol_p,
 # inputs carry no derivatives, so the compiled solve is the same).
 _all_starts_jit = eqx.filter_jit(_all_starts)
 _assess_jit = eqx.filter_jit(assess)
-_attempt_jit = eqx.filter_jit(attempt)
+_round_jit = eqx.filter_jit(attempt_round)
 
 
 def _select(take: Array, a, b):
@@ -136,25 +201,41 @@ def _select(take: Array, a, b):
     return jax.tree.map(lambda x, y: jnp.where(take, x, y), a, b)
 
 
+def run_start(body, layout, init, ts, k: int, caps: list[int], tols, closed_form) -> Attempt:
+    """Start k of a phase, in rounds of `caps` steps until the solver stops; its attempt
+    counts the steps of every round."""
+    x = jnp.zeros(layout.n_free, tols[0].dtype)
+    spent, fresh = 0, True
+    for cap in caps:
+        x, done, a = _round_jit(
+            body, layout, init, ts, x, jnp.asarray(k), jnp.asarray(fresh), cap, *tols, closed_form
+        )
+        spent += int(a.steps)
+        fresh = False
+        if bool(done):
+            break
+    return eqx.tree_at(lambda a: a.steps, a, jnp.asarray(spent))
+
+
 def solve_host(body, layouts, init, ts, starts, max_steps, tols):
-    """Phases and starts driven from the host: each attempt runs only if needed. Returns
+    """Phases, starts and rounds driven from the host: each runs only if needed. Returns
     the kept `Attempt`, the solver steps over all attempts, and per point target whether it
     lies beyond the reach bound of the last phase tried."""
     best, steps = None, 0
-    beyond_final = np.zeros(ts.point_xyz.shape[0], bool)
     start_pose = init
-    for layout in layouts:
-        beyond = beyond_bound(body, layout, start_pose, ts.point_xyz)
-        beyond_final = beyond
-        for k in range(starts if not beyond.any() else 1):
-            a = _attempt_jit(body, layout, start_pose, ts, jnp.asarray(k), max_steps, *tols)
+    for phase, layout in enumerate(layouts):
+        beyond, far, caps = phase_plan(body, layouts, phase, start_pose, ts.point_xyz, max_steps)
+        if not far.any():
+            caps = round_caps(max_steps)
+        for k in range(1 if far.any() else starts):
+            a = run_start(body, layout, start_pose, ts, k, caps, tols, phase == 0)
             steps += int(a.steps)
             if best is None or bool(better(a, best)):
                 best = a
             if bool(a.ok):
                 return best, steps, beyond
         start_pose = best.pose  # the trunk joins from the limbs' closest reach
-    return best, steps, beyond_final
+    return best, steps, beyond
 
 
 def solve_traced(body, layouts, init, ts, starts, max_steps, tols):
@@ -163,9 +244,9 @@ def solve_traced(body, layouts, init, ts, starts, max_steps, tols):
     Returns what `solve_host` does, with no target flagged as beyond."""
     best, steps = None, jnp.asarray(0)
     start_pose = init
-    for layout in layouts:
+    for phase, layout in enumerate(layouts):
         b0, p0, t0, tp0, ta0 = no_gradient((body, start_pose, ts, *tols))
-        x, s = _all_starts_jit(b0, layout, p0, t0, starts, max_steps, tp0, ta0)
+        x, s = _all_starts_jit(b0, layout, p0, t0, starts, max_steps, tp0, ta0, phase == 0)
         a = _assess_jit(body, layout, start_pose, ts, x, s, *tols, True)
         steps = steps + s
         if best is not None and (a.pose.spine_target is None) != (best.pose.spine_target is None):

@@ -85,9 +85,11 @@ def solve_reach(
     hold exactly by construction (bounded maps, `_unknowns`).
 
     The limbs move first; the trunk (spine, root) joins only for what they cannot reach
-    (`_phases`). Each phase tries `init` (or the limbs' closest reach), then up to
-    `starts - 1` further starts, until every target is reached; a target beyond its chain's
-    total length spends one start. Then the standard orientation is restored
+    (`_phases`). The limbs' phase starts from the closed-form limb start (the elbow or knee
+    from the distance, the swivel from `init`; `_limb_start`), the trunk's from the limbs'
+    closest reach; each phase then tries up to `starts - 1` further starts, each in rounds
+    of a few steps, until every target is reached; a target out of a phase's reach spends
+    one start. Then the standard orientation is restored
     (`standard_orientation`): twists no target depends on return to the standard
     orientation, joints unchanged. An unreachable target gives the closest reach with
     `reached` False; a solve that misses is a status, never an exception or a NaN.
@@ -99,7 +101,7 @@ def solve_reach(
         spine, free_root, segments: which unknowns exist (above).
         starts: the most starts per phase (>= 1).
         standard_orientation: apply the post-projection.
-        max_steps: solver steps per start (>= 1).
+        max_steps: solver steps per start (>= 1), in rounds of `_attempt.ROUND_STEPS`.
         tol_position, tol_angle: what counts as reached (m, rad; > 0).
 
     Returns:

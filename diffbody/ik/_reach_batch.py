@@ -18,26 +18,28 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
+from .._batches import chunk_rows, map_chunks, row_sharding
 from .._body import Body, Pose
-from .._progress import Progress
 from .._spine import spine_angles
-from ._attempt import Attempt, attempt, better
-from ._phases import beyond_bound, is_none, phase_layouts
+from ._attempt import Attempt, attempt_round, better, round_caps
+from ._phases import is_none, phase_layouts, phase_plan
 from ._post_projection import finish, needs_projection, twists_to_keep
 from ._reach import ReachResult, check_settings, reach_status
 from ._targets import Target, TargetSet, resolve_targets
 from ._unknowns import Layout
 
 
-def _attempt_rows(body, layout, inits, template: TargetSet, xyz, ks, max_steps, tol_pos, tol_ang):
-    """`attempt` vmapped over rows: their start poses, target positions (batch, k, 3) and
-    start indices."""
+def _round_rows(
+    body, layout, inits, template: TargetSet, xyz, x, ks, fresh, cap, tol_pos, tol_ang, closed
+):
+    """`attempt_round` vmapped over rows: their start poses, target positions (batch, k, 3),
+    free vectors to go on from, start indices and whether each begins its start."""
 
-    def one(init, p, k):
+    def one(init, p, x, k, f):
         targets = eqx.tree_at(lambda t: t.point_xyz, template, p)
-        return attempt(body, layout, init, targets, k, max_steps, tol_pos, tol_ang)
+        return attempt_round(body, layout, init, targets, x, k, f, cap, tol_pos, tol_ang, closed)
 
-    return jax.vmap(one)(inits, xyz, ks)
+    return jax.vmap(one)(inits, xyz, x, ks, fresh)
 
 
 def _finish_rows(body, poses, keep):
@@ -45,10 +47,17 @@ def _finish_rows(body, poses, keep):
     return jax.vmap(lambda p: finish(body, p, keep))(poses)
 
 
-# One compiled function per (body structure, layout, chunk size), shared by all chunks,
-# passes and starts (the start index is traced) and by all calls with the same shapes.
-_attempt_rows_jit = eqx.filter_jit(_attempt_rows)
+# One compiled function per (body structure, layout, chunk size, round cap), shared by all
+# chunks, starts and rounds (the start index is traced) and by all calls with the same
+# shapes.
+_round_rows_jit = eqx.filter_jit(_round_rows)
 _finish_rows_jit = eqx.filter_jit(_finish_rows)
+
+# Rows per compiled call of the passes over the rows that still miss (further rounds and
+# starts, the trunk's phase), when fewer than half a chunk: the few rows left after the
+# first round run in chunks their size, not padded to a whole chunk (one more compiled
+# shape, for batches larger than this).
+RETRY_ROWS = 64
 
 
 def solve_reach_batch(
@@ -71,10 +80,10 @@ def solve_reach_batch(
     The same problem as `solve_reach` with position targets only, vmapped: the rows go
     through one jit-compiled solve in chunks of `chunk_size` (the last chunk is padded and
     the padding dropped, so every chunk reuses the same compiled function and memory stays
-    bounded by one chunk). Each phase makes two passes: every row still missed from its start
-    pose, then the rows with a target missed from the other starts, side by side (one row
-    per start: under vmap a chunk would run as many starts in turn as its hardest row). Each
-    row's result is what `solve_reach` gives it. Rows with a NaN or infinite coordinate are
+    bounded by one chunk). Each phase tries its starts in turn, each in rounds
+    (`_attempt.ROUND_STEPS`), and every pass takes only the rows still running or missed
+    (compacted: under vmap a chunk runs as long as its slowest row). Each row's result is
+    what `solve_reach` gives it. Rows with a NaN or infinite coordinate are
     flagged per target (`valid` and `reached` False, residual 0) and never raise or leak NaN;
     the other targets of that row are still solved.
 
@@ -133,6 +142,7 @@ class _Setup:
     tol_position: float  # m, as given
     tols: tuple[Array, Array]  # m, rad: the solver's tolerances
     chunk: int  # rows per compiled call, a multiple of the device count
+    retry_chunk: int  # rows per compiled call of a pass over fewer than half a chunk
     sharding: jax.sharding.Sharding
     progress: bool
 
@@ -171,14 +181,7 @@ def _prepare(
     layouts = phase_layouts(body, template, spine=spine, free_root=False, segments=segments)
     n = xyz.shape[0]
     devices = list(jax.local_devices() if devices is None else devices)
-    n_dev = len(devices)
-    chunk = max(1, min(int(chunk_size), n))
-    chunk = -(-chunk // n_dev) * n_dev  # a multiple of the device count
-    if n_dev > 1:
-        mesh = jax.sharding.Mesh(np.asarray(devices), ("batch",))
-        sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
-    else:
-        sharding = jax.sharding.SingleDeviceSharding(devices[0])
+    chunk = chunk_rows(chunk_size, n, len(devices))
     dtype = jnp.result_type(float)
     tols = (jnp.asarray(tol_position, dtype), jnp.asarray(np.deg2rad(1.0), dtype))
     return _Setup(
@@ -192,39 +195,24 @@ def _prepare(
         tol_position=tol_position,
         tols=tols,
         chunk=chunk,
-        sharding=sharding,
+        retry_chunk=chunk_rows(min(chunk, RETRY_ROWS), n, len(devices)),
+        sharding=row_sharding(devices),
         progress=progress,
     )
 
 
-def _in_chunks(s: _Setup, fn, arrays, total: int, label: str):
-    """fn over `arrays` (leading axis `total`) in chunks of `s.chunk` rows, each sharded over
-    the devices, the last padded with copies of its last row (dropped after); host numpy
-    results, with a progress bar."""
-    chunk = s.chunk
-    bar = Progress(total, s.progress, label)
-    parts = []
-    for at in range(0, total, chunk):
-        part = jax.tree.map(lambda a: a[at : at + chunk], arrays)
-        m = min(chunk, total - at)
-        if m < chunk:
-            part = jax.tree.map(
-                lambda a: np.concatenate([a, np.repeat(a[-1:], chunk - m, axis=0)]), part
-            )
-        part = jax.device_put(jax.tree.map(jnp.asarray, part), s.sharding)
-        out = fn(*part)
-        parts.append(jax.tree.map(lambda a, m=m: np.asarray(a)[:m], out))
-        bar.update(at + m)
-    return jax.tree.map(lambda *a: np.concatenate(a), *parts)
+def _round(s: _Setup, layout: Layout, rows, poses: Pose, x, ks, fresh, cap, closed, label):
+    """One round of rows (their start poses, free vectors, start indices and whether each
+    begins its start), in chunks: the free vectors, whether each solve ended, the attempts."""
 
+    def fn(p, xyz, x, k, f):
+        return _round_rows_jit(s.body, layout, p, s.template, xyz, x, k, f, cap, *s.tols, closed)
 
-def _attempts(s: _Setup, layout: Layout, poses: Pose, xyz, ks, label: str) -> Attempt:
-    """One attempt per row (its start pose, positions (k, 3) and start index), in chunks."""
-
-    def fn(p, x, k):
-        return _attempt_rows_jit(s.body, layout, p, s.template, x, k, s.max_steps, *s.tols)
-
-    return _in_chunks(s, fn, (poses, xyz, ks), len(ks), label)
+    chunk = s.chunk if 2 * len(rows) > s.chunk else s.retry_chunk
+    arrays = (poses, s.xyz[rows], x, ks, fresh)
+    return map_chunks(
+        fn, arrays, chunk=chunk, sharding=s.sharding, progress=s.progress, label=label
+    )
 
 
 def _rows(tree, rows):
@@ -236,26 +224,30 @@ def _empty_result(s: _Setup) -> ReachResult:
     """The result of no rows, its shapes from the abstract evaluation."""
     k = s.xyz.shape[1]
     poses = jax.tree.map(lambda a: jnp.asarray(a)[None], s.init)
-    shapes = eqx.filter_eval_shape(
-        _attempt_rows,
+    layout = s.layouts[-1]
+    _, _, shapes = eqx.filter_eval_shape(
+        _round_rows,
         s.body,
-        s.layouts[-1],
+        layout,
         poses,
         s.template,
         jnp.zeros((1, k, 3)),
+        jnp.zeros((1, layout.n_free), s.tols[0].dtype),
         jnp.zeros(1, int),
+        jnp.ones(1, bool),
         s.max_steps,
         *s.tols,
+        False,
     )
     empty = jax.tree.map(lambda a: np.zeros((0,) + a.shape[1:], a.dtype), shapes)
     return _batch_result(empty, s.xyz, np.zeros(0, int), np.zeros((0, k), bool), s.tol_position)
 
 
 def _solve_rows(s: _Setup) -> tuple[Attempt, np.ndarray, np.ndarray]:
-    """The phases over the rows: a pass of every row still missed from its start pose, then
-    `_retry` of those with no bound against them; the next phase (the trunk) takes the rows
-    still missed from the limbs' closest reach. Returns the kept attempts, the steps (n,)
-    and `beyond` (n, k)."""
+    """The phases over the rows: in each, the starts in turn (`_start`) over the rows that
+    still miss, a row out of the phase's reach trying the first start only; the next phase
+    (the trunk) takes the rows still missed from the limbs' closest reach. Returns the kept
+    attempts, the steps (n,) and `beyond` (n, k)."""
     n, k = s.xyz.shape[:2]
     init_np = jax.tree.map(np.asarray, s.init)
     best = None
@@ -264,23 +256,57 @@ def _solve_rows(s: _Setup) -> tuple[Attempt, np.ndarray, np.ndarray]:
     start_poses = jax.tree.map(lambda a: np.repeat(a[None], n, axis=0), init_np)
     todo = np.arange(n)
     for phase, layout in enumerate(s.layouts):
-        beyond = beyond_bound(s.body, layout, s.init, s.xyz)
-        label = "reach" if phase == 0 else "reach, trunk"
-        zeros = np.zeros(len(todo), int)
-        a = _attempts(s, layout, _rows(start_poses, todo), s.xyz[todo], zeros, label)
-        steps[todo] += a.steps
-        if best is not None and best.pose.spine_target is None and a.pose.spine_target is not None:
-            best = _with_spine_target(s, best)
-        best = a if best is None else _merge(best, todo, a)
-        retry = todo[~a.ok & ~beyond[todo].any(-1)]
-        if s.starts > 1 and len(retry):
-            best, spent = _retry(s, layout, start_poses, retry, best)
-            steps[retry] += spent
+        beyond, far, far_caps = phase_plan(s.body, s.layouts, phase, s.init, s.xyz, s.max_steps)
+        far = far.any(-1)
+        rows = todo
+        for start in range(s.starts):
+            a, spent = _start(s, layout, phase, start_poses, rows, start, far, far_caps)
+            steps[rows] += spent
+            if best is not None and best.pose.spine_target is None:
+                if a.pose.spine_target is not None:
+                    best = _with_spine_target(s, best)
+            if best is None:
+                best = a
+            else:
+                take = better(a, _rows(best, rows))
+                best = _merge(best, rows[take], _rows(a, take))
+            rows = rows[~a.ok & ~far[rows]]
+            if not len(rows):
+                break
         todo = np.flatnonzero(~best.ok)
         if not len(todo):
             break
         start_poses = best.pose  # the trunk joins from the limbs' closest reach
     return best, steps, beyond
+
+
+def _start(
+    s: _Setup, layout: Layout, phase: int, start_poses: Pose, rows, start, far, far_caps
+) -> tuple[Attempt, np.ndarray]:
+    """Start `start` of rows `rows` in rounds, each round over the rows whose solve goes on
+    (a row out of reach: `far_caps`). Returns the attempts and the steps of each row."""
+    m = len(rows)
+    caps = round_caps(s.max_steps)
+    x = np.zeros((m, layout.n_free), np.dtype(s.tols[0].dtype))
+    spent = np.zeros(m, int)
+    fresh = np.ones(m, bool)
+    ks = np.full(m, start)
+    rounds = np.where(far[rows], len(far_caps), len(caps))
+    out = None
+    going = np.arange(m)
+    label = "solves" if phase == 0 and start == 0 else "solves, further"
+    for r, cap in enumerate(caps):
+        poses = _rows(start_poses, rows[going])
+        x_r, done, a = _round(
+            s, layout, rows[going], poses, x[going], ks[going], fresh[going], cap, phase == 0, label
+        )
+        x[going], fresh[going] = x_r, False
+        spent[going] += a.steps
+        out = a if out is None else _merge(out, going, a)
+        going = going[~done & (r + 1 < rounds[going])]
+        if not len(going):
+            break
+    return eqx.tree_at(lambda a: a.steps, out, spent), spent
 
 
 def _with_spine_target(s: _Setup, best: Attempt) -> Attempt:
@@ -293,35 +319,20 @@ def _with_spine_target(s: _Setup, best: Attempt) -> Attempt:
     )
 
 
-def _retry(
-    s: _Setup, layout: Layout, start_poses: Pose, retry: np.ndarray, best: Attempt
-) -> tuple[Attempt, np.ndarray]:
-    """The further starts of rows `retry`, side by side (one row per start); per row the
-    first that reaches (else the closest) replaces `best` where it is better. Returns the
-    new best and the steps of each retried row, counted as `solve_reach` counts them: the
-    starts tried up to the first that reaches."""
-    more = s.starts - 1
-    ks = np.tile(np.arange(1, s.starts), len(retry))
-    rows = np.repeat(retry, more)
-    b = _attempts(s, layout, _rows(start_poses, rows), s.xyz[rows], ks, "retry")
-    b_ok = b.ok.reshape(len(retry), more)
-    b_cost = b.cost.reshape(len(retry), more)
-    pick = np.where(b_ok.any(1), b_ok.argmax(1), b_cost.argmin(1))
-    spent = np.cumsum(b.steps.reshape(len(retry), more), axis=1)
-    spent = np.where(b_ok.any(1), spent[np.arange(len(retry)), pick], spent[:, -1])
-    chosen = _rows(b, np.arange(len(retry)) * more + pick)
-    take = better(chosen, _rows(best, retry))
-    return _merge(best, retry[take], _rows(chosen, take)), spent
-
-
 def _project(s: _Setup, best: Attempt) -> Attempt:
     """The rows' poses after the post-projection, when the final phase needs one."""
     final = s.layouts[-1]
     keep = twists_to_keep(s.body, final) if needs_projection(s.body, final) else None
     if keep is None:
         return best
-    n = len(s.xyz)
-    poses = _in_chunks(s, lambda p: _finish_rows_jit(s.body, p, keep), (best.pose,), n, "project")
+    poses = map_chunks(
+        lambda p: _finish_rows_jit(s.body, p, keep),
+        (best.pose,),
+        chunk=s.chunk,
+        sharding=s.sharding,
+        progress=s.progress,
+        label="project",
+    )
     return eqx.tree_at(lambda b: b.pose, best, poses)
 
 

@@ -1,12 +1,13 @@
-"""Where a solve starts (docs/design.md, section 6): the start pose first, then fixed points spread
-over the free variables' range.
+"""Where a solve starts (docs/design.md, section 6): the closed-form limb start (or the
+start pose) first, then fixed points spread over the free variables' range.
 
-Start 0 is the caller's `init`, so a reachable target keeps the most natural posture. Start
-k > 0 is the k-th point of a Halton sequence over the limbs' free variables (u in
-[-1.3, 1.3]; the trunk, the spine target and the root's placement, kept at the start, so
-that the trunk never starts bent further than the reach needs): low-discrepancy, so the
-first few starts already cover the range evenly instead of clustering as independent
-random draws do, and the same for every problem, so results are reproducible.
+Start 0 is the phase's first start (`_limb_start` in the limbs' phase, else the start
+pose), so a reachable target keeps the most natural posture. Start k > 0 is the k-th point
+of a Halton sequence over the limbs' free variables (u in [-1.3, 1.3]; the trunk, the spine
+target and the root's placement, kept at the start, so that the trunk never starts bent
+further than the reach needs): low-discrepancy, so the first few starts already cover the
+range evenly instead of clustering as independent random draws do, and the same for every
+problem, so results are reproducible.
 """
 
 import functools
@@ -43,14 +44,15 @@ def halton(n_starts: int, dim: int) -> np.ndarray:
 MAX_STARTS = 64  # starts beyond this many repeat the table (each is tried at most once)
 
 
-def nth_start(x0: Float[Array, " n"], k: Int[Array, ""], n_trunk: int) -> Float[Array, " n"]:
-    """The free vector of start k (traced): x0 for k = 0, else the k-th Halton point (k
-    modulo `MAX_STARTS`) with the trunk (the last `n_trunk` entries: spine target, root
-    placement) kept at x0."""
+def nth_start(
+    first: Float[Array, " n"], x0: Float[Array, " n"], k: Int[Array, ""], n_trunk: int
+) -> Float[Array, " n"]:
+    """The free vector of start k (traced): `first` for k = 0, else the k-th Halton point
+    (k modulo `MAX_STARTS`) with the trunk (the last `n_trunk` entries: spine target, root
+    placement) kept at x0, the start pose's."""
     n = x0.shape[0]
     if n == 0:
         return x0
     table = jnp.asarray(halton(MAX_STARTS, n), x0.dtype)
-    point = table[jnp.mod(k, MAX_STARTS)]
-    keep = np.arange(n) >= n - n_trunk
-    return jnp.where((k == 0) | keep, x0, point)
+    point = jnp.where(np.arange(n) >= n - n_trunk, x0, table[jnp.mod(k, MAX_STARTS)])
+    return jnp.where(k == 0, first, point)
