@@ -1,0 +1,97 @@
+"""The closed-form limb start: where it applies, how close it lands, and the phases' reach."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import diffbody as db
+from diffbody.ik._limb_start import limb_start, limbs
+from diffbody.ik._phases import beyond_bound, out_of_reach, phase_layouts
+from diffbody.ik._problem import make_problem
+from diffbody.ik._targets import resolve_targets
+
+
+def _random_limb_poses(body, segments, rng, n):
+    """Pose angles (n, n_seg, 3) with `segments` uniform within their limits, the rest at rest."""
+    rest = body.rest_pose()
+    idx = np.asarray([body.segment_index(s) for s in segments])
+    lo, hi = np.asarray(body.swing_lo)[idx], np.asarray(body.swing_hi)[idx]
+    w = lo + (hi - lo) * rng.uniform(size=(n, len(idx), 2))
+    smax = np.asarray(body.swing_max)[idx]
+    w *= np.minimum(1.0, smax / np.maximum(np.linalg.norm(w, axis=-1), 1e-300))[..., None]
+    tlo, thi = np.asarray(body.twist_lo)[idx], np.asarray(body.twist_hi)[idx]
+    W = np.repeat(np.asarray(db.swing_vector(body, rest.angles))[None], n, 0)
+    W[:, idx] = w
+    T = np.repeat(np.asarray(rest.angles[:, 2])[None], n, 0)
+    T[:, idx] = tlo + (thi - tlo) * rng.uniform(size=(n, len(idx)))
+    return jax.vmap(lambda w, t: db.angles_from_swing(body, w, t))(W, T)
+
+
+@pytest.mark.parametrize(
+    "effector, segments",
+    [
+        ("left_hand.palm", ("left_upper_arm", "left_forearm", "left_hand")),
+        ("left_ankle", ("left_thigh", "left_shank")),
+    ],
+)
+def test_the_start_lands_on_most_reachable_targets(male50, effector, segments):
+    """Targets made by FK of random in-limit limb poses: the closed-form start alone puts
+    the effector within 1 mm of three in four (measured: arm 87 %, leg 79 %) and within
+    5 cm of nine in ten (the rest need the solver's polish, where the limits clip the
+    start), and it never leaves the limits (the bounded maps)."""
+    rest = male50.rest_pose()
+    angles = _random_limb_poses(male50, segments, np.random.default_rng(5), 200)
+    name = effector
+    fk = jax.jit(jax.vmap(lambda a: db.forward(male50, db.Pose(rest.position, a))))(angles)
+    if "." in name:
+        xyz = np.asarray(fk.feature_points[:, male50.feature_index(name)])
+    else:
+        xyz = np.asarray(fk.joint_positions[:, male50.joint_index(name)])
+    ts, _ = resolve_targets(male50, [db.Target.position(name, xyz[0])])
+    layout = phase_layouts(male50, ts, spine=True, free_root=False, segments=None)[0]
+    assert len(limbs(male50, layout, ())) == 1
+
+    @jax.jit
+    @jax.vmap
+    def start_error(p):
+        t = eqx.tree_at(lambda t: t.point_xyz, ts, p[None])
+        problem = make_problem(male50, layout, rest)
+        x = limb_start(male50, layout, rest, t, problem)
+        pose = problem.pose(x, rest)
+        return problem.errors(x, t)[0][0], jnp.max(db.stop_violation(male50, pose))
+
+    error, violation = start_error(jnp.asarray(xyz))
+    error = np.asarray(error)
+    assert np.mean(error <= 1e-3) >= 0.75, np.percentile(error, [50, 75, 90])
+    assert np.mean(error <= 5e-2) >= 0.9, np.percentile(error, [50, 75, 90])
+    assert float(np.max(violation)) <= 1e-9
+
+
+def test_no_closed_form_where_it_does_not_apply(male50):
+    """An axis target on the limb, or two point targets on it: the start pose is kept."""
+    palm = [db.Target.position("left_hand.palm", [0.3, 0.2, 1.0])]
+    axis = [db.Target.axis_direction("left_hand", [0, 1, 0], [0, 0, -1])]
+    wrist = [db.Target.position("left_wrist", [0.3, 0.2, 1.1])]
+    for targets in (palm + axis, palm + wrist):
+        ts, _ = resolve_targets(male50, targets)
+        layout = phase_layouts(male50, ts, spine=True, free_root=False, segments=None)[0]
+        assert limbs(male50, layout, ts.axis_segment) == ()
+
+
+def test_a_target_past_the_arm_is_out_of_the_limbs_reach(male50):
+    """0.75 m in front of the shoulder is within the arm and clavicle's summed lengths from
+    the clavicle's root, but the clavicle swings only 20 degrees: the limbs' phase cannot
+    reach it (no further starts), while the trunk's phase might."""
+    rest = male50.rest_pose()
+    shoulder = np.asarray(db.forward(male50, rest).joint_positions)[
+        male50.joint_index("left_shoulder")
+    ]
+    near, far = shoulder + [0.4, 0.0, -0.1], shoulder + [0.75, 0.0, -0.1]
+    ts, _ = resolve_targets(male50, [db.Target.position("left_hand.palm", near)])
+    limbs_phase, trunk_phase = phase_layouts(male50, ts, spine=True, free_root=False, segments=None)
+    xyz = np.stack([near, far])[:, None]
+    assert not beyond_bound(male50, limbs_phase, rest, xyz).any()
+    np.testing.assert_array_equal(out_of_reach(male50, limbs_phase, rest, xyz)[:, 0], [0, 1])
+    assert not out_of_reach(male50, trunk_phase, rest, xyz).any()
