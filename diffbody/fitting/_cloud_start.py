@@ -141,11 +141,8 @@ def search_tables(body: Body, lay: FitLayout) -> tuple:
     """What `search_start` needs of the body, as nested tuples (static under jit): the
     groups' indices and grids (`group_table`) and the compared spheres (`search_spheres`)."""
     index, grid = group_table(body, lay)
-    return tuple(map(tuple, index.tolist())), _tuples(grid), tuple(search_spheres(body).tolist())
-
-
-def _tuples(a: np.ndarray):
-    return tuple(_tuples(b) for b in a) if a.ndim else float(a)
+    grid = tuple(tuple(map(tuple, g)) for g in grid.tolist())
+    return tuple(map(tuple, index.tolist())), grid, tuple(search_spheres(body).tolist())
 
 
 def search_start(start: Start, lay: FitLayout, cloud: Cloud, tables: tuple) -> tuple[Array, Array]:

@@ -22,7 +22,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .._batches import chunk_rows, map_chunks
 from .._body import Body, Pose, without_names
-from .._solver import FitStatus, least_squares_solver, solve
+from .._solver import FitStatus, least_squares_solver, solve, tolerance
 from ._cloud_start import search_start, search_tables
 from ._clouds import check_correspondences, check_spheres
 from ._sphere_residuals import (
@@ -61,6 +61,7 @@ STAGES = (
     (0.007, 0.04, 2, False),
     (0.005, INLIER_DISTANCE, 2, False),
 ) + ((0.003, INLIER_DISTANCE, 2, True),) * 5  # EM converges slowly: assign anew 5x
+TIGHT = (1e-5, 1e-10)  # the last stages' tolerance in float32, float64
 STEPS = 6  # solver steps per stage: few, each stage starts where its predecessor ended
 # With correspondences there is nothing to anneal but the outlier scale, and every restart
 # of Levenberg-Marquardt costs steps (its damping starts afresh): three long stages.
@@ -101,7 +102,7 @@ def schedule(lay: FitLayout, known: bool, dtype) -> tuple[Array, ...]:
     """Per stage: T (m), c (m), the pull per unknown, the solver's tolerance."""
     T, c, moves, tight = (np.asarray(col) for col in zip(*(KNOWN_STAGES if known else STAGES)))
     pull = np.where(lay.stage_of()[None, :] <= moves[:, None], PULL, STIFF)
-    tol = np.where(tight, 1e-10 if dtype == jnp.float64 else 1e-5, 1e-4)
+    tol = np.where(tight, tolerance(dtype, *TIGHT), 1e-4)
     return tuple(jnp.asarray(a, dtype) for a in (T, c, pull, tol))
 
 
@@ -143,7 +144,10 @@ def fit_cloud(template: Body, lay: FitLayout, init: Pose, cloud: Cloud, align: A
         pairs = pairs_at(cloud, model_spheres(start, lay, z), T, c)
         out = solve(
             stage_residuals,
-            least_squares_solver(tol),
+            # One solver for every stage (`least_squares_solver` takes a number, not a
+            # traced one): the tight tolerance; a loose stage ends at its few steps or
+            # when it stands still (below).
+            least_squares_solver(tolerance(z.dtype, *TIGHT)),
             z,
             (start, lay, pairs, z, pull),
             KNOWN_STEPS if cloud.known else STEPS,
