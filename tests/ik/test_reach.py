@@ -69,23 +69,33 @@ def test_implicit_gradient_of_the_reach_with_respect_to_the_target(male50, palm0
     """Reverse mode through the solve (the implicit function theorem at the optimum): where a
     target is reached, the reached point follows the target one to one, so the Jacobian is
     I, up to the light pull toward init (1e-6 per unit, here about 1e-4 off I: the
-    stretched arm's smallest singular values are ~0.1)."""
-    palm = male50.feature_index("left_hand.palm")
+    stretched arm's smallest singular values are ~0.1).
 
-    def reached(t):
+    The hand starts flexed by 0.2 rad: the closed-form limb start leaves it where init has
+    it, and a segment exactly at its socket's pole (the hanging hand of the standard
+    position) has seed 000 angles (theta, phi) whose derivatives lose a direction there
+    (checked finite below)."""
+    palm = male50.feature_index("left_hand.palm")
+    hand = male50.segment_index("left_hand")
+    rest = male50.rest_pose()
+    init = db.Pose(position=rest.position, angles=rest.angles.at[hand, 1].add(-0.2))
+
+    def reached(t, init):
         target = [db.Target.position("left_hand.palm", t)]
-        out = db.solve_reach(male50, target, segments=ARM, starts=1)
+        out = db.solve_reach(male50, target, init=init, segments=ARM, starts=1)
         return db.forward(male50, out.pose).feature_points[palm]
 
     # One compiled derivative (the solve, its implicit derivative and their transpose in one
     # XLA program) instead of hundreds of small ones run op by op.
     jac = jax.jit(jax.jacrev(reached))
-    J = jac(jnp.asarray(palm0 + [0.25, 0.1, 0.35]))
+    J = jac(jnp.asarray(palm0 + [0.25, 0.1, 0.35]), init)
     np.testing.assert_allclose(J, np.eye(3), atol=1e-3)
     # Out of reach the arm ends straight, a singular posture: the derivatives stay finite
     # (same shapes: the compiled derivative is reused).
-    J_far = jac(jnp.asarray(palm0 + [2.0, 0.0, 0.0]))
+    J_far = jac(jnp.asarray(palm0 + [2.0, 0.0, 0.0]), init)
     assert np.all(np.isfinite(J_far))
+    # With the hand at its pole (init the standard position), finite too.
+    assert np.all(np.isfinite(jac(jnp.asarray(palm0 + [0.25, 0.1, 0.35]), rest)))
 
 
 def test_solve_reach_traces_under_jit_with_a_closed_over_body(male50, palm0):
