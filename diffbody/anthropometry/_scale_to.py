@@ -21,8 +21,8 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import ArrayLike
 
+from .._batches import map_chunks
 from .._body import Body, without_names
-from .._progress import Progress
 from ..files._body_file import load_body
 from ._measurements import MEASUREMENT_NAMES, UNITS, check_names, measure
 from ._prior import PopulationPrior, ansur2_subjects, check_sex
@@ -96,33 +96,36 @@ _lengths_many_jit = eqx.filter_jit(eqx.filter_vmap(_lengths, in_axes=(None, 0)))
 PIECE_TOL = 1e-9  # relative: an answer whose exact lengths differ more left its piece
 
 
-def _solve_rows(template: Body, args: _Args, y0: np.ndarray, chunk: int, bar) -> tuple:
+def _solve_rows(template: Body, args: _Args, y0: np.ndarray, chunk: int, progress: bool) -> tuple:
     """Solve every row (leading axis of the row-wise fields) in chunks, then re-solve the
     rows whose answer left the linear model's piece with A recomputed there (module
     docstring). Returns scales (n, 2 n_group), converged (n,) and the exact lengths."""
     dtype = args.log_target.dtype
     n = y0.shape[0]
     A = np.broadcast_to(np.asarray(args.A), (n,) + args.A.shape[-2:]).copy()
-    x, ok = np.zeros_like(y0), np.zeros(n, bool)
+    log_target = np.asarray(args.log_target)
+
+    def solve_chunk(A, log_target, y0):
+        rows = A.shape[0]
+        part = _Args(
+            jnp.asarray(A, dtype),
+            jnp.broadcast_to(args.given, (rows,) + args.given.shape[-1:]),
+            jnp.asarray(log_target, dtype),
+            jnp.broadcast_to(args.whiten, (rows,) + args.whiten.shape[-2:]),
+        )
+        xs, oks = _solve_many_jit(part, jnp.asarray(y0, dtype))
+        return xs, oks, _lengths_many_jit(template, xs)
+
+    x, ok, exact = np.zeros_like(y0), np.zeros(n, bool), np.zeros((n, A.shape[1]))
     rows = np.arange(n)
-    exact = np.zeros((n, A.shape[1]))
     for attempt in range(4):
-        for start in range(0, len(rows), chunk):
-            part = rows[start : start + chunk]
-            pad = np.concatenate([part, np.repeat(part[-1:], chunk - len(part))])
-            part_args = _Args(
-                jnp.asarray(A[pad], dtype),
-                jnp.broadcast_to(args.given, (chunk,) + args.given.shape[-1:]),
-                jnp.asarray(np.asarray(args.log_target)[pad], dtype),
-                jnp.broadcast_to(args.whiten, (chunk,) + args.whiten.shape[-2:]),
-            )
-            xs, oks = _solve_many_jit(part_args, jnp.asarray(y0[pad], dtype))
-            xs = np.asarray(xs)
-            lengths = np.asarray(_lengths_many_jit(template, jnp.asarray(xs, dtype)))
-            k = len(part)
-            x[part], ok[part], exact[part] = xs[:k], np.asarray(oks)[:k], lengths[:k]
-            if attempt == 0 and bar is not None:
-                bar.update(min(start + chunk, n))
+        x[rows], ok[rows], exact[rows] = map_chunks(
+            solve_chunk,
+            (A[rows], log_target[rows], y0[rows]),
+            chunk=chunk,
+            progress=progress and attempt == 0,
+            label="scale",
+        )
         linear = np.einsum("nij,nj->ni", A[rows], x[rows])
         off = np.max(np.abs(exact[rows] / linear - 1), axis=1) > PIECE_TOL
         rows = rows[off]
@@ -134,7 +137,9 @@ def _solve_rows(template: Body, args: _Args, y0: np.ndarray, chunk: int, bar) ->
     return x, ok & ~np.isin(np.arange(n), rows), exact
 
 
-def _solve_people(template: Body, given, target, whiten, chunk: int, bar=None) -> tuple:
+def _solve_people(
+    template: Body, given, target, whiten, chunk: int, progress: bool = False
+) -> tuple:
     """Log group scales (n, 2, n_group), converged (n,) and exact lengths (n, L) for rows
     of log targets (n, L), each started from the template scaled uniformly to its stature.
 
@@ -155,7 +160,7 @@ def _solve_people(template: Body, given, target, whiten, chunk: int, bar=None) -
         column = target[:, LENGTHS.index("stature")][:, None]
         y0 = np.exp(np.repeat(column, 2 * N_GROUPS, 1) - log_stature)
         args = _Args(A, jnp.asarray(given), jnp.asarray(target), jnp.asarray(whiten, jnp.float64))
-        x, ok, exact = _solve_rows(template, args, y0, min(chunk, len(target)), bar)
+        x, ok, exact = _solve_rows(template, args, y0, min(chunk, len(target)), progress)
     return np.log(np.maximum(x, 1e-12)).reshape(-1, 2, N_GROUPS), ok, exact
 
 
@@ -364,8 +369,9 @@ def scale_population(
     log_known = np.log(np.where(valid[:, None], values, 1.0))
     mask, target, whiten, log_mass = _conditioned(prior, known, log_known)
     mass = np.where(valid, np.exp(log_mass), np.nan)
-    bar = Progress(len(values), progress, "scale")
-    log_scales, converged, lengths = _solve_people(template, mask, target, whiten, chunk_size, bar)
+    log_scales, converged, lengths = _solve_people(
+        template, mask, target, whiten, chunk_size, progress
+    )
     measured = np.stack(
         [mass if n == "weightkg" else lengths[:, LENGTHS.index(n)] for n in MEASUREMENT_NAMES], 1
     )

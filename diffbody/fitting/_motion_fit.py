@@ -4,8 +4,9 @@ the body and its registered markers fixed (`scale_and_register`).
 Each frame's rows (`_mocap_solver`): sqrt(weight) (model - measured) / `MARKER_SD` of its
 present markers (a missing marker weighs 0 in its frame) and a weak `PULL` toward the start
 moved rigidly onto the frame's pelvis markers. The frames are solved in order (`lax.scan`),
-each from its predecessor's answer, a chunk of frames per compiled call. Results are NumPy,
-frame axis first: poses, markers (f, n, 3) m, errors (f, n) m.
+each from its predecessor's answer, a chunk of frames per compiled call
+(`diffbody._batches.map_chunks`, the last answer carried to the next chunk).
+Results are NumPy, frame axis first: poses, markers (f, n, 3) m, errors (f, n) m.
 """
 
 from collections.abc import Mapping
@@ -14,11 +15,11 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, Float, Int
 
+from .._batches import map_chunks
 from .._body import Body, Pose, without_names
-from .._progress import Progress
+from .._solver import solve
 from ._marker_layout import mocap_layout, rigid_start
 from ._marker_points import model_markers
 from ._marker_trial import MarkerTrial
@@ -26,7 +27,6 @@ from ._markerset import MarkerSet, match_markers
 from ._mocap_solver import (
     MIN_MARKERS,
     PULL,
-    fit_status,
     frame_arrays,
     make_problem_jit,
     masked_targets,
@@ -45,17 +45,9 @@ def _frame_residuals(x: Array, args) -> Array:
 def _solve_frame(problem, lay, offsets, x_start, anchor, target, sqrt_w):
     """One frame's posture from x_start, weakly pulled toward `anchor`: (x, status, steps).
     A frame with fewer than `MIN_MARKERS` markers keeps x_start (FAILED)."""
-    sol = optx.least_squares(
-        _frame_residuals,
-        solver(x_start.dtype),
-        x_start,
-        (problem, lay, offsets, target, sqrt_w, anchor),
-        max_steps=FRAME_STEPS,
-        throw=False,
-    )
-    ok = jnp.all(jnp.isfinite(sol.value)) & (jnp.sum(sqrt_w > 0) >= MIN_MARKERS)
-    status = fit_status(ok, sol.result == optx.RESULTS.successful)
-    return jnp.where(ok, sol.value, x_start), status, sol.stats["num_steps"]
+    args = (problem, lay, offsets, target, sqrt_w, anchor)
+    enough = jnp.sum(sqrt_w > 0) >= MIN_MARKERS
+    return solve(_frame_residuals, solver(x_start.dtype), x_start, args, FRAME_STEPS, enough)
 
 
 def _fit_frames(problem, lay, offsets, measured, sqrt_w, x_first, init: Pose):
@@ -212,19 +204,16 @@ def fit_motion(
     problem = make_problem_jit(template, lay.pose, start)
     offsets = jnp.asarray(markerset.offsets, dtype)
     target, sqrt_w = frame_arrays(trial, w, dtype)
-    total = trial.n_frames
-    chunk = min(chunk_size, total)
-    bar = Progress(total, progress, "frames")
-    outs = []
-    x_last = jnp.full(lay.pose.n_free, jnp.nan, dtype)
-    for lo in range(0, total, chunk):
-        rows = np.minimum(np.arange(lo, lo + chunk), total - 1)  # pad with the last frame
-        out = _fit_frames_jit(problem, lay, offsets, target[rows], sqrt_w[rows], x_last, start)
-        *out, x_last = out
-        keep = min(chunk, total - lo)
-        outs.append(jax.tree.map(lambda a: np.asarray(a)[:keep], tuple(out)))
-        bar.update(lo + keep)
-    poses, p, err, status, steps = jax.tree.map(lambda *a: np.concatenate(a), *outs)
+
+    def chunk_fit(x_last, target, sqrt_w):
+        *out, x_last = _fit_frames_jit(problem, lay, offsets, target, sqrt_w, x_last, start)
+        return x_last, tuple(out)
+
+    x_first = jnp.full(lay.pose.n_free, jnp.nan, dtype)
+    chunk = min(chunk_size, trial.n_frames)
+    _, (poses, p, err, status, steps) = map_chunks(
+        chunk_fit, (target, sqrt_w), chunk=chunk, progress=progress, label="frames", carry=x_first
+    )
     rms, worst = _rms_max(err, axis=1)
     return MotionFit(
         poses=poses,

@@ -16,11 +16,10 @@ import dataclasses
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, Float, Int
 
 from .._body import Body, Pose, without_names
-from .._solver import FitStatus
+from .._solver import FitStatus, solve
 from ..anthropometry._prior import PopulationPrior
 from ..anthropometry._scale_to import LENGTHS, linear_model_jit
 from ..anthropometry._scaling import N_GROUPS, per_segment
@@ -32,7 +31,6 @@ from ._markerset import MarkerSet, match_markers, scale_offsets
 from ._mocap_solver import (
     MIN_MARKERS,
     PULL,
-    fit_status,
     frame_arrays,
     make_problem_jit,
     masked_targets,
@@ -177,17 +175,12 @@ def _fit_static(template: Body, lay: MocapLayout, rest: Pose, static: _Static):
     init = static.problem.pose(x0.at[-6:].set(root), rest)
     static = dataclasses.replace(static, problem=make_problem(template, lay.pose, init))
     z0 = jnp.zeros(sum(lay.sizes), x0.dtype).at[: lay.sizes[0]].set(static.problem.x0)
-    sol = optx.least_squares(
-        _static_residuals, solver(z0.dtype), z0, (static, lay), max_steps=STATIC_STEPS, throw=False
-    )
-    finite = jnp.all(jnp.isfinite(sol.value))
-    z = jnp.where(finite, sol.value, z0)
+    z, status, steps = solve(_static_residuals, solver(z0.dtype), z0, (static, lay), STATIC_STEPS)
     lengths, offsets, x, (log_axial, log_radial), _ = _static_state(static, lay, z)
     p = tree_markers(lay, static.problem, lengths, offsets, x)
     errors = jnp.where(present, jnp.linalg.norm(p - static.target, axis=-1), jnp.nan)
-    status = fit_status(finite, sol.result == optx.RESULTS.successful)
     pose = static.problem.pose(x, init)
-    return pose, log_axial, log_radial, offsets, errors, status, sol.stats["num_steps"]
+    return pose, log_axial, log_radial, offsets, errors, status, steps
 
 
 _fit_static_jit = eqx.filter_jit(_fit_static)

@@ -1,15 +1,16 @@
 """Joint refinement of lengths and postures from an image sequence (beyond seed 003;
 docs/design.md, section 8): `refine`, and `lift`, the whole pipeline from Webb's estimate.
 
-One least-squares problem over all frames, by optimistix's Levenberg-Marquardt. Unknowns: the
-log of every distinct length (m; left and right shared with `symmetric`), optionally the log
-focal length (px), and per frame the reference joint's (x, y) (its depth is known) and each
-part's direction as two coordinates in the plane tangent to its start (no pole). Residuals,
-weighted by `LiftOptions`: reprojection (px) through a Cauchy loss; the accelerations of every
-part and of the reference (m per frame^2), looser along the optical axis; the log lengths
-toward the start (Webb's lengths are lower bounds); optionally the body's hinge limits. Frames
-couple only through the accelerations and the lengths, so `_banded.BandedSchurCholesky` solves
-each step in O(T n^3). The focal length is weakly observable: refine it only from a close start.
+One least-squares problem over all frames, by the one Levenberg-Marquardt (`diffbody._solver`).
+Unknowns: the log of every distinct length (m; left and right shared with `symmetric`),
+optionally the log focal length (px), and per frame the reference joint's (x, y) (its depth is
+known) and each part's direction as two coordinates in the plane tangent to its start (no
+pole). Residuals, weighted by `LiftOptions`: reprojection (px) through a Cauchy loss; the
+accelerations of every part and of the reference (m per frame^2), looser along the optical
+axis; the log lengths toward the start (Webb's lengths are lower bounds); optionally the
+body's hinge limits. Frames couple only through the accelerations and the lengths, so the
+solver's linear solve is `_banded.BandedSchurCholesky`: each step in O(T n^3). The focal
+length is weakly observable: refine it only from a close start.
 """
 
 import enum
@@ -22,24 +23,25 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._rotations import safe_normalize
+from .._solver import FitStatus, least_squares_solver, solve
 from ._banded import BandedSchurCholesky, FrameResiduals, FrameUnknowns
 from ._joint_tree import JointTree
 from ._webb import check_sequence, rays
 
 
 class LiftStatus(enum.IntEnum):
-    """How a refinement ended."""
+    """How a refinement ended: the values of every fit's `FitStatus`."""
 
-    CONVERGED = 0  # the steps stopped changing the answer (optimistix's tolerances)
-    NOT_CONVERGED = 1  # max_steps ran out: the last iterate, usable but not settled
-    FAILED = 2  # the solve broke down: the start is returned
+    CONVERGED = FitStatus.CONVERGED  # the steps stopped changing the answer
+    NOT_CONVERGED = FitStatus.NOT_CONVERGED  # max_steps ran out: the last iterate
+    FAILED = FitStatus.FAILED  # the solve left the finite numbers: the start is returned
 
     def describe(self) -> str:
         return {
-            0: "converged",
-            1: "not converged: the last iterate after max_steps",
-            2: "failed: the start is returned",
-        }[int(self)]
+            "CONVERGED": "converged",
+            "NOT_CONVERGED": "not converged: the last iterate after max_steps",
+            "FAILED": "failed: the start is returned",
+        }[self.name]
 
 
 class Lifting(eqx.Module):
@@ -183,32 +185,20 @@ def lift_kernel(
     T, P = d0.shape[:2]
     y0 = FrameUnknowns(border=border, frames=jnp.zeros((T, P + 1, 2), uv.dtype))
     args = (tree, options, groups, pb)
-    solver = optx.LevenbergMarquardt(
-        rtol=options.tol,
-        atol=options.tol,
-        norm=optx.rms_norm,
-        linear_solver=linear_solver or BandedSchurCholesky(),
+    solver = least_squares_solver(
+        options.tol, linear_solver=linear_solver or BandedSchurCholesky(), norm=optx.rms_norm
     )
-    sol = optx.least_squares(_residuals, solver, y0, args, max_steps=options.max_steps, throw=False)
-    failed = ~(jnp.all(jnp.isfinite(sol.value.frames)) & jnp.all(jnp.isfinite(sol.value.border)))
-    y = jax.tree.map(lambda a, b: jnp.where(failed, b, a), sol.value, y0)
+    y, status, steps = solve(_residuals, solver, y0, args, options.max_steps)
     pos, _, lengths, f = _joints(tree, options, groups, y, pb)
     z = jnp.maximum(pos[..., 2], 1e-3)
     err = f * pos[..., :2] / z[..., None] - uv
-    status = jnp.where(
-        failed,
-        LiftStatus.FAILED,
-        jnp.where(
-            sol.result == optx.RESULTS.successful, LiftStatus.CONVERGED, LiftStatus.NOT_CONVERGED
-        ),
-    )
     return Lifting(
         lengths=lengths,
         joints=pos,
         focal=f,
         reprojection_rms=jnp.sqrt(jnp.mean(jnp.sum(err * err, -1))),
-        steps=sol.stats["num_steps"],
-        status=status.astype(jnp.int32),
+        steps=steps,
+        status=status,
     )
 
 
