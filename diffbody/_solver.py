@@ -50,13 +50,14 @@ class EarlyStop(optx.LevenbergMarquardt):
 
 
 def least_squares_solver(
-    tol: float,
+    tol: float | Array,
     *,
     linear_solver: lx.AbstractLinearSolver = NORMAL_CHOLESKY,
     norm=optx.max_norm,
     early_stop: bool = False,
 ) -> optx.LevenbergMarquardt:
-    """Levenberg-Marquardt with rtol = atol = `tol` under `norm` (max_norm: every unknown
+    """Levenberg-Marquardt with rtol = atol = `tol` (a number, or traced: a stage's own)
+    under `norm` (max_norm: every unknown
     within tol; rms_norm: on average), the damped steps solved by `linear_solver`;
     `early_stop`: `EarlyStop`."""
     kind = EarlyStop if early_stop else optx.LevenbergMarquardt

@@ -9,6 +9,7 @@ devices (the problems are independent, so no data crosses hosts), and JAX's runt
 rest. There is no cluster layer here.
 """
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -32,14 +33,17 @@ from ._unknowns import Layout
 def _round_rows(
     body, layout, inits, template: TargetSet, xyz, x, ks, fresh, cap, tol_pos, tol_ang, closed
 ):
-    """`attempt_round` vmapped over rows: their start poses, target positions (batch, k, 3),
-    free vectors to go on from, start indices and whether each begins its start."""
+    """`attempt_round` vmapped over rows: their start poses (or one `Pose` shared by every
+    row: then what depends on it alone, the start's walk and problem, is computed once per
+    chunk, not per row), target positions (batch, k, 3), free vectors to go on from, start
+    indices and whether each begins its start."""
 
     def one(init, p, x, k, f):
         targets = eqx.tree_at(lambda t: t.point_xyz, template, p)
         return attempt_round(body, layout, init, targets, x, k, f, cap, tol_pos, tol_ang, closed)
 
-    return jax.vmap(one)(inits, xyz, x, ks, fresh)
+    shared = jnp.ndim(inits.position) == 1
+    return jax.vmap(one, in_axes=(None if shared else 0, 0, 0, 0, 0))(inits, xyz, x, ks, fresh)
 
 
 def _finish_rows(body, poses, keep):
@@ -201,15 +205,26 @@ def _prepare(
     )
 
 
-def _round(s: _Setup, layout: Layout, rows, poses: Pose, x, ks, fresh, cap, closed, label):
-    """One round of rows (their start poses, free vectors, start indices and whether each
-    begins its start), in chunks: the free vectors, whether each solve ended, the attempts."""
+def _round(s: _Setup, layout: Layout, rows, poses: Pose | None, x, ks, fresh, cap, closed, label):
+    """One round of rows (their start poses, None: all from s.init; free vectors, start
+    indices and whether each begins its start), in chunks: the free vectors, whether each
+    solve ended, the attempts."""
 
     def fn(p, xyz, x, k, f):
         return _round_rows_jit(s.body, layout, p, s.template, xyz, x, k, f, cap, *s.tols, closed)
 
     chunk = s.chunk if 2 * len(rows) > s.chunk else s.retry_chunk
-    arrays = (poses, s.xyz[rows], x, ks, fresh)
+    arrays = (s.xyz[rows], x, ks, fresh)
+    if poses is None:  # every row starts from s.init
+        return map_chunks(
+            functools.partial(fn, s.init),
+            arrays,
+            chunk=chunk,
+            sharding=s.sharding,
+            progress=s.progress,
+            label=label,
+        )
+    arrays = (poses,) + arrays
     return map_chunks(
         fn, arrays, chunk=chunk, sharding=s.sharding, progress=s.progress, label=label
     )
@@ -249,11 +264,10 @@ def _solve_rows(s: _Setup) -> tuple[Attempt, np.ndarray, np.ndarray]:
     (the trunk) takes the rows still missed from the limbs' closest reach. Returns the kept
     attempts, the steps (n,) and `beyond` (n, k)."""
     n, k = s.xyz.shape[:2]
-    init_np = jax.tree.map(np.asarray, s.init)
     best = None
     steps = np.zeros(n, int)
     beyond = np.zeros((n, k), bool)
-    start_poses = jax.tree.map(lambda a: np.repeat(a[None], n, axis=0), init_np)
+    start_poses = None  # every row from s.init
     todo = np.arange(n)
     for phase, layout in enumerate(s.layouts):
         beyond, far, far_caps = phase_plan(s.body, s.layouts, phase, s.init, s.xyz, s.max_steps)
@@ -281,7 +295,7 @@ def _solve_rows(s: _Setup) -> tuple[Attempt, np.ndarray, np.ndarray]:
 
 
 def _start(
-    s: _Setup, layout: Layout, phase: int, start_poses: Pose, rows, start, far, far_caps
+    s: _Setup, layout: Layout, phase: int, start_poses: Pose | None, rows, start, far, far_caps
 ) -> tuple[Attempt, np.ndarray]:
     """Start `start` of rows `rows` in rounds, each round over the rows whose solve goes on
     (a row out of reach: `far_caps`). Returns the attempts and the steps of each row."""
@@ -296,7 +310,7 @@ def _start(
     going = np.arange(m)
     label = "solves" if phase == 0 and start == 0 else "solves, further"
     for r, cap in enumerate(caps):
-        poses = _rows(start_poses, rows[going])
+        poses = None if start_poses is None else _rows(start_poses, rows[going])
         x_r, done, a = _round(
             s, layout, rows[going], poses, x[going], ks[going], fresh[going], cap, phase == 0, label
         )
