@@ -61,7 +61,7 @@ def _fit(args) -> int:
     import numpy as np
 
     from ..files._saving import save_body
-    from ..fitting._sphere_fit import INLIER_DISTANCE, FitStatus, fit_spheres
+    from ..fitting._sphere_fit import INLIER_DISTANCE, LANDED_INLIERS, FitStatus, fit_spheres
 
     check_output("--out", args.out)
     check_output("--png", args.png)
@@ -81,6 +81,13 @@ def _fit(args) -> int:
     )
     if residual.size:
         print(f"inlier residual: median {1000 * np.median(residual):.1f} mm")
+    landed = bool(out.landed)
+    if not landed:
+        print(
+            f"did not land: fewer than {100 * LANDED_INLIERS:.0f} % of the spheres are inliers "
+            "(the cloud may not be a body, or the start search found no posture near it; "
+            "correspondences help)"
+        )
     from ..anthropometry._scaling import SCALE_GROUPS
 
     print("scale group        axial  radial")
@@ -93,6 +100,7 @@ def _fit(args) -> int:
     data = {
         "cloud": args.cloud,
         "status": status,
+        "landed": landed,
         "steps": int(out.steps),
         "position": np.asarray(out.pose.position).tolist(),
         "angles_deg": {n: angles[i].tolist() for i, n in enumerate(body.segment_names)},

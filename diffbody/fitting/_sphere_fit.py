@@ -144,10 +144,7 @@ def fit_cloud(template: Body, lay: FitLayout, init: Pose, cloud: Cloud, align: A
         pairs = pairs_at(cloud, model_spheres(start, lay, z), T, c)
         out = solve(
             stage_residuals,
-            # One solver for every stage (`least_squares_solver` takes a number, not a
-            # traced one): the tight tolerance; a loose stage ends at its few steps or
-            # when it stands still (below).
-            least_squares_solver(tolerance(z.dtype, *TIGHT)),
+            least_squares_solver(tol),
             z,
             (start, lay, pairs, z, pull),
             KNOWN_STEPS if cloud.known else STEPS,

@@ -22,6 +22,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._chain import on_paths
 from .._rotations import safe_normalize
 from .._solver import FitStatus, least_squares_solver, solve
 from ._banded import BandedSchurCholesky, FrameResiduals, FrameUnknowns
@@ -106,15 +107,11 @@ class _Problem(eqx.Module):
 
 
 def _ancestors(tree: JointTree) -> np.ndarray:
-    """(J, P) 0/1: part k lies on the path from the reference to joint j."""
+    """(J, P) 0/1: part k lies on the path from the reference to joint j (`on_paths` over
+    the parts, each part's parent the part that ends where it starts)."""
     part_of = {e: k for k, e in enumerate(tree.part_end)}
-    A = np.zeros((tree.n_joints, tree.n_parts))
-    for j in range(tree.n_joints):
-        i = j
-        while tree.parents[i] != -1:
-            A[j, part_of[i]] = 1.0
-            i = tree.parents[i]
-    return A
+    parent = [part_of.get(tree.parents[e], -1) for e in tree.part_end]
+    return on_paths(parent, [part_of.get(j, -1) for j in range(tree.n_joints)])
 
 
 def _joints(tree: JointTree, options: LiftOptions, groups, y: FrameUnknowns, pb: _Problem):

@@ -83,6 +83,8 @@ def test_the_fit_command_on_noisy_clouds_with_outliers(male50, tmp_path, capsys)
         print(f"cloud {seed}: length error mean {1e3 * error.mean():.2f} mm")
         data = json.loads((tmp_path / f"fitted{seed}.pose.json").read_text())
         assert set(data["axial"]) == set(db.SCALE_GROUPS) and len(data["position"]) == 3
+        # The command says when a fit did not land (too few inliers), and writes it.
+        assert ("did not land" in text) == (not data["landed"])
         if error.mean() < LANDED:
             landed += 1
             inliers, outlier = np.asarray(data["inliers"]), np.asarray(match) < 0
