@@ -274,7 +274,10 @@ def _solve_rows(s: _Setup) -> tuple[Attempt, np.ndarray, np.ndarray]:
         far = far.any(-1)
         rows = todo
         for start in range(s.starts):
-            a, spent = _start(s, layout, phase, start_poses, rows, start, far, far_caps)
+            left = s.starts - start
+            tail = start > 0 and len(rows) * left <= s.retry_chunk
+            run = _side_by_side if tail else _start
+            a, spent = run(s, layout, phase, start_poses, rows, start, far, far_caps)
             steps[rows] += spent
             if best is not None and best.pose.spine_target is None:
                 if a.pose.spine_target is not None:
@@ -285,7 +288,7 @@ def _solve_rows(s: _Setup) -> tuple[Attempt, np.ndarray, np.ndarray]:
                 take = better(a, _rows(best, rows))
                 best = _merge(best, rows[take], _rows(a, take))
             rows = rows[~a.ok & ~far[rows]]
-            if not len(rows):
+            if tail or not len(rows):
                 break
         todo = np.flatnonzero(~best.ok)
         if not len(todo):
@@ -304,11 +307,11 @@ def _start(
     x = np.zeros((m, layout.n_free), np.dtype(s.tols[0].dtype))
     spent = np.zeros(m, int)
     fresh = np.ones(m, bool)
-    ks = np.full(m, start)
+    ks = np.broadcast_to(start, (m,)).copy()
     rounds = np.where(far[rows], len(far_caps), len(caps))
     out = None
     going = np.arange(m)
-    label = "solves" if phase == 0 and start == 0 else "solves, further"
+    label = "solves" if phase == 0 and np.all(start == 0) else "solves, further"
     for r, cap in enumerate(caps):
         poses = None if start_poses is None else _rows(start_poses, rows[going])
         x_r, done, a = _round(
@@ -321,6 +324,25 @@ def _start(
         if not len(going):
             break
     return eqx.tree_at(lambda a: a.steps, out, spent), spent
+
+
+def _side_by_side(
+    s: _Setup, layout: Layout, phase: int, start_poses: Pose | None, rows, start, far, far_caps
+) -> tuple[Attempt, np.ndarray]:
+    """Starts `start`.. of rows `rows` side by side (one lane per row and start, in rounds),
+    for the few rows left: a call's cost barely depends on its rows, so the tail of hard
+    rows takes one pass instead of one per start. Per row the first start that reaches
+    (else the closest), its steps counted as `_start` in turn counts them: up to that start."""
+    left = s.starts - start
+    lanes = np.repeat(rows, left)
+    ks = np.tile(np.arange(start, s.starts), len(rows))
+    a, _ = _start(s, layout, phase, start_poses, lanes, ks, far, far_caps)
+    ok, cost = a.ok.reshape(-1, left), a.cost.reshape(-1, left)
+    pick = np.where(ok.any(1), ok.argmax(1), cost.argmin(1))
+    spent = np.cumsum(a.steps.reshape(-1, left), axis=1)
+    spent = spent[np.arange(len(rows)), np.where(ok.any(1), pick, left - 1)]
+    chosen = _rows(a, np.arange(len(rows)) * left + pick)
+    return eqx.tree_at(lambda a: a.steps, chosen, spent), spent
 
 
 def _with_spine_target(s: _Setup, best: Attempt) -> Attempt:
