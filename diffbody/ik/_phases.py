@@ -96,23 +96,40 @@ def _phase_layouts(body, ts, spine, free_root, segments) -> list[Layout]:
     return [limbs, full]
 
 
-def beyond_bound(body: Body, layout: Layout, init: Pose, xyz: ArrayLike) -> np.ndarray:
+def host_links(body: Body, init: Pose):
+    """The start's links of every segment (global order) as NumPy arrays."""
+    return jax.tree.map(np.asarray, _start_links_jit(body, init)[0])
+
+
+def beyond_bound(body: Body, layout: Layout, init: Pose, xyz: ArrayLike, links=None) -> np.ndarray:
     """Whether point targets xyz (..., n_p, 3) lie beyond the phase's reach bound, the sum
-    of its chain's lengths (host): what `ReachResult.beyond` reports."""
-    links = jax.tree.map(np.asarray, _start_links_jit(body, init)[0])
+    of its chain's lengths (host): what `ReachResult.beyond` reports. `links`: the start's
+    (`host_links`), when already at hand."""
+    links = host_links(body, init) if links is None else links
     anchor, bound = reach_bound(body, layout, links)
     return _farther(xyz, anchor, bound)
 
 
-def out_of_reach(body: Body, layout: Layout, init: Pose, xyz: ArrayLike) -> np.ndarray:
+def out_of_reach(body: Body, layout: Layout, init: Pose, xyz: ArrayLike, links=None) -> np.ndarray:
     """Whether point targets xyz (..., n_p, 3) lie out of the phase's reach (host): farther
     from every place the top segment of their chain can put its distal joint than the rest
     of the chain is long. The top segment swings within its cone (the clavicle by 20
     degrees), so its distal joint stays on a cap of the sphere around its proximal joint;
     the rest is bounded by its lengths. A necessary condition for a reach, tighter than
     `beyond_bound` where the chain hangs from a segment of little swing."""
-    links = jax.tree.map(np.asarray, _start_links_jit(body, init)[0])
+    links = host_links(body, init) if links is None else links
     anchor, bound = reach_bound(body, layout, links)
+    lengths, swing_lo, swing_hi, swing_max, R_parent_socket, R_socket_rest = (
+        np.asarray(a)
+        for a in (
+            body.lengths,
+            body.swing_lo,
+            body.swing_hi,
+            body.swing_max,
+            body.R_parent_socket,
+            body.R_socket_rest,
+        )
+    )
     xyz = np.asarray(xyz, float)
     out = _farther(xyz, anchor, bound)
     live = set(layout.chain.segments)
@@ -122,11 +139,11 @@ def out_of_reach(body: Body, layout: Layout, init: Pose, xyz: ArrayLike) -> np.n
         if layout.root or layout.full or len(path) < 2 or not np.isfinite(bound[j]):
             continue
         top = path[-1]
-        length = float(body.lengths[top])
-        lo, hi = np.abs(np.asarray(body.swing_lo[top])), np.abs(np.asarray(body.swing_hi[top]))
-        half = min(float(body.swing_max[top]), float(np.hypot(*np.maximum(lo, hi))), np.pi)
-        R_socket = links.R_twisted[int(body.parent[top])] @ np.asarray(body.R_parent_socket[top])
-        centre = R_socket @ np.asarray(body.R_socket_rest[top])[:, 2]
+        length = float(lengths[top])
+        lo, hi = np.abs(swing_lo[top]), np.abs(swing_hi[top])
+        half = min(float(swing_max[top]), float(np.hypot(*np.maximum(lo, hi))), np.pi)
+        R_socket = links.R_twisted[int(body.parent[top])] @ R_parent_socket[top]
+        centre = R_socket @ R_socket_rest[top][:, 2]
         with np.errstate(invalid="ignore", over="ignore"):
             v = xyz[..., j, :] - anchor[j]
             D = np.linalg.norm(v, axis=-1)
@@ -163,8 +180,9 @@ def phase_plan(
     (reported) and out of reach (no further start), and the round caps of a start out of
     reach (one round, unless this is the last phase)."""
     layout = layouts[phase]
-    beyond = beyond_bound(body, layout, init, xyz)
-    far = out_of_reach(body, layout, init, xyz)
+    links = host_links(body, init)
+    beyond = beyond_bound(body, layout, init, xyz, links)
+    far = out_of_reach(body, layout, init, xyz, links)
     caps = round_caps(max_steps)
     return beyond, far, caps if phase == len(layouts) - 1 else caps[:1]
 

@@ -134,17 +134,24 @@ def resolve_targets(body: Body, targets: Sequence[Target]) -> tuple[TargetSet, l
             )
     order = [i for i, t in enumerate(targets) if t.kind == "point"]
     order += [i for i, t in enumerate(targets) if t.kind == "axis"]
-    xyz = jnp.stack([jnp.asarray(t.value) for t in points]) if points else jnp.zeros((0, 3))
     ts = TargetSet(
         point_index=tuple(point_index(body, t.name) for t in points),
-        point_xyz=xyz.reshape(-1, 3),
-        point_weight=jnp.asarray([t.weight for t in points]).reshape(-1),
+        point_xyz=_stacked([t.value for t in points], (-1, 3)),
+        point_weight=_stacked([t.weight for t in points], (-1,)),
         axis_segment=tuple(body.segment_index(t.name) for t in axes),
-        axis_local=jnp.asarray(np.asarray([t.axis for t in axes]).reshape(-1, 3)),
-        axis_direction=jnp.asarray(np.asarray([t.value for t in axes]).reshape(-1, 3)),
-        axis_weight=jnp.asarray([t.weight for t in axes]).reshape(-1),
+        axis_local=_stacked([t.axis for t in axes], (-1, 3)),
+        axis_direction=_stacked([t.value for t in axes], (-1, 3)),
+        axis_weight=_stacked([t.weight for t in axes], (-1,)),
     )
     return ts, order
+
+
+def _stacked(values: list, shape: tuple[int, ...]) -> Array:
+    """The values as one array of JAX's default float type: built in NumPy and moved once
+    (a warm solve's host work), or stacked in JAX when one is traced (under jit, grad)."""
+    if any(isinstance(v, jax.core.Tracer) for v in values):
+        return jnp.stack([jnp.asarray(v) for v in values]).reshape(shape)
+    return jnp.asarray(np.asarray(values, dtype=jnp.result_type(float)).reshape(shape))
 
 
 def mask_invalid(targets: TargetSet) -> tuple[TargetSet, Array, Array]:
