@@ -39,7 +39,7 @@ def check_reach(f: dict) -> None:
     d, change = np.asarray(f["d_m"]), np.asarray(f["change_deg"])  # (flexion, axial, lateral)
     trunk, reached = np.asarray(f["trunk_joins"]), np.asarray(f["reached"])
     quoted(
-        "the spine stays at rest up to 0.65 m, then flexes +3.7, +13.7, +24.6 and +53.2 degrees "
+        "the spine stays at rest up to 0.65 m, then flexes +4.2, +14.3, +26.0 and +52.6 degrees "
         "at 0.70, 0.75, 0.80 and 0.90 m, turning the left shoulder forward as it goes (axial -3 "
         "to -42 degrees); 1.0 m is out of reach."
     )
@@ -48,11 +48,11 @@ def check_reach(f: dict) -> None:
     assert np.all(change[held] == 0.0), change[held]  # exactly at rest: the trunk never moved
     # the redundant trunk's share moves by tenths of a degree with XLA's optimisation level
     rungs = np.searchsorted(d, [0.70, 0.75, 0.80, 0.90])
-    close(change[rungs, 0], [3.7, 13.7, 24.6, 53.2], 0.5, "flexion change (deg)")
+    close(change[rungs, 0], [4.2, 14.3, 26.0, 52.6], 0.5, "flexion change (deg)")
     close(change[rungs[[0, -1]], 1], [-3.0, -42.0], 1.0, "axial change (deg)")
     assert reached.tolist() == (d < 1.0).tolist()
-    # the notebook's text: the palm misses the 1.0 m rung by about 2 cm
-    close(f["residual_mm"][-1], 21.0, 5.0, "miss at 1.0 m (mm)")
+    # the notebook's text: the palm misses the 1.0 m rung by about 3 cm
+    close(f["residual_mm"][-1], 29.0, 5.0, "miss at 1.0 m (mm)")
 
 
 def check_batch_ik(f: dict) -> None:

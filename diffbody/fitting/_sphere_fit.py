@@ -23,6 +23,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from .._batches import chunk_rows, map_chunks
 from .._body import Body, Pose, without_names
 from .._solver import FitStatus, least_squares_solver, solve, tolerance
+from .._spine import spine_angles
 from ._cloud_start import search_start, search_tables
 from ._clouds import check_correspondences, check_spheres
 from ._sphere_residuals import (
@@ -174,22 +175,54 @@ def fit_cloud(template: Body, lay: FitLayout, init: Pose, cloud: Cloud, align: A
 
 
 def fit_one(template, lay, init, cloud, align, tables):
-    """`fit_cloud`, from the searched start when `tables` (static) is not None."""
-    if tables is not None:
-        init, align = searched(template, lay, init, cloud, tables), False
-    return fit_cloud(template, lay, init, cloud, jnp.asarray(align))
+    """`fit_cloud`; when `tables` (static) is not None, from two starts side by side, the
+    searched one and `init` moved onto the cloud, keeping the fit with more inliers (then
+    the smaller residuals): the search's chamfer cost can prefer a start that anneals
+    worse than the plain one on a cloud near the standard position (a spread of 0.15:
+    41.7 mm against 4.4 mm worst segment)."""
+    if tables is None:
+        return fit_cloud(template, lay, init, cloud, jnp.asarray(align))
+    found = searched(template, lay, init, cloud, tables)
+    return _from_two(template, lay, found, init, cloud)
+
+
+def _from_two(template, lay, found: Pose, init: Pose, cloud: Cloud):
+    """`fit_cloud` from the searched start and from `init` moved onto the cloud, side by
+    side; the better of the two (`_better_of_two`)."""
+    if (found.spine_target is None) != (init.spine_target is None):
+        # One structure for both: the searched start names the spine as its target.
+        total = spine_angles(template, template.spine, init).sum(0)
+        found, init = (
+            dataclasses.replace(p, spine_target=total) if p.spine_target is None else p
+            for p in (found, init)
+        )
+    inits = jax.tree.map(lambda a, b: jnp.stack([a, b]), found, init)
+    fits = jax.vmap(lambda i, a: fit_cloud(template, lay, i, cloud, a))(
+        inits, jnp.asarray([False, True])
+    )
+    return _better_of_two(fits)
+
+
+def _better_of_two(fits):
+    """Of two fits (leading axis 2), the one with more inliers, then the smaller residual
+    distances (capped at the inlier distance); the steps of both."""
+    distances = fits[3]
+    inliers = jnp.sum(distances < INLIER_DISTANCE, axis=-1)
+    spread = jnp.mean(jnp.minimum(distances, INLIER_DISTANCE), axis=-1) / INLIER_DISTANCE
+    k = jnp.argmin(spread - inliers)
+    pose, log_axial, log_radial, distances, status, steps = jax.tree.map(lambda a: a[k], fits)
+    return pose, log_axial, log_radial, distances, status, jnp.sum(fits[5])
 
 
 def fit_many(template, lay, init, clouds, align, tables):
     """`fit_one` of a chunk of clouds: the searches one after the other (`lax.map`: a vmap
     of the search's vmapped candidates trips XLA's dot simplifier, and one search already
-    fills the cores), the fits vmapped."""
-    inits = None
-    if tables is not None:
-        inits = jax.lax.map(lambda c: searched(template, lay, init, c, tables), clouds)
-        init, align = inits, False
-    fit = eqx.filter_vmap(fit_cloud, in_axes=(None, None, None if inits is None else 0, 0, None))
-    return fit(template, lay, init, clouds, jnp.asarray(align))
+    fills the cores), the fits vmapped (each from its two starts, as `fit_one`)."""
+    if tables is None:
+        fit = eqx.filter_vmap(fit_cloud, in_axes=(None, None, None, 0, None))
+        return fit(template, lay, init, clouds, jnp.asarray(align))
+    found = jax.lax.map(lambda c: searched(template, lay, init, c, tables), clouds)
+    return jax.vmap(lambda f, c: _from_two(template, lay, f, init, c))(found, clouds)
 
 
 # One compiled fit per (body structure, layout, cloud size, start); the batch one per chunk.

@@ -9,9 +9,8 @@ closest reach. Within a phase, starts are tried in turn (the closed-form limb st
 start pose first, then the fixed points of `_starts`), each in rounds (`_attempt`), until
 every target is reached, unless a target lies out of the phase's reach (`out_of_reach`),
 which decides up front that no start can reach it: then the phase tries its first start
-only, and a phase that is not the last gives it one round (its answer is only the next
-phase's start). With concrete inputs the host drives phases, starts and rounds
-(`solve_host`), so only what a target needs is run; under a JAX transformation
+only (its answer is the next phase's start). With concrete inputs the host drives phases,
+starts and rounds (`solve_host`), so only what a target needs is run; under a JAX transformation
 (`solve_traced`) the starts run side by side, each one uninterrupted solve, and the kept
 attempt is selected with `jnp.where`.
 """
@@ -178,13 +177,14 @@ def phase_plan(
 ) -> tuple[np.ndarray, np.ndarray, list[int]]:
     """For phase `phase` from `init`: per point target whether it is beyond the reach bound
     (reported) and out of reach (no further start), and the round caps of a start out of
-    reach (one round, unless this is the last phase)."""
+    reach: every round, so that a limb reaching for what it cannot reach ends at its closest
+    reach, where the trunk phase starts (from a limb stopped short, Levenberg-Marquardt
+    bends the spine further than the arm falls short: +2 degrees on the reach ladder)."""
     layout = layouts[phase]
     links = host_links(body, init)
     beyond = beyond_bound(body, layout, init, xyz, links)
     far = out_of_reach(body, layout, init, xyz, links)
-    caps = round_caps(max_steps)
-    return beyond, far, caps if phase == len(layouts) - 1 else caps[:1]
+    return beyond, far, round_caps(max_steps)
 
 
 # --- the drivers ------------------------------------------------------------------------
