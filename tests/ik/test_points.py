@@ -53,7 +53,11 @@ def cases(male50):
     out = []
     for name, lay in _layouts(body).items():
         slots, offsets, heights = _points(body, lay, rng)
-        compiled = jax.jit(functools.partial(_kernel_and_jacobians, slots))
+        # Reverse mode of the whole tree is checked by the marker kernel's tests
+        # (tests/fitting/test_mocap.py, root and spine free): here it would double the
+        # largest compile of the suite.
+        reverse = name != "whole"
+        compiled = jax.jit(functools.partial(_kernel_and_jacobians, slots, reverse))
         for kind in ("random", "rest", "limits"):
             pose = (
                 body.rest_pose()
@@ -74,7 +78,7 @@ def cases(male50):
     return out
 
 
-def _kernel_and_jacobians(slots, problem, *args):
+def _kernel_and_jacobians(slots, reverse, problem, *args):
     def fast(*a):
         return tree_points(slots, problem, *a)
 
@@ -87,20 +91,22 @@ def _kernel_and_jacobians(slots, problem, *args):
         plain(*args),
         jax.jacfwd(fast, argnums)(*args),
         jax.jacfwd(plain, argnums)(*args),
-        jax.jacrev(fast, argnums)(*args),
+        jax.jacrev(fast, argnums)(*args) if reverse else None,
     )
 
 
 def test_jacobian_matches_autodiff_through_the_walk(cases):
     """d points / d (lengths, offsets, heights, x): the closed form equals forward-mode
-    autodiff through the walk to 1e-10, and reverse mode equals forward mode."""
+    autodiff through the walk to 1e-10, and reverse mode equals forward mode (arm and leg
+    layouts)."""
     for name, compiled, problem, _, args in cases:
         p_fast, p_plain, J_fast, J_plain, J_rev = compiled(problem, *args)
         np.testing.assert_allclose(p_fast, p_plain, atol=1e-14, err_msg=name)
-        for a, b, c in zip(J_fast, J_plain, J_rev):
+        for k, (a, b) in enumerate(zip(J_fast, J_plain)):
             assert np.all(np.isfinite(a)), name
             np.testing.assert_allclose(a, b, atol=1e-10, err_msg=name)
-            np.testing.assert_allclose(c, a, atol=1e-10, err_msg=name)
+            if J_rev is not None:
+                np.testing.assert_allclose(J_rev[k], a, atol=1e-10, err_msg=name)
 
 
 def test_gradient_of_a_loss_matches_finite_differences(cases):
