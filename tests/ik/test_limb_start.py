@@ -5,28 +5,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from limb_poses import random_limb_angles
 
 import diffbody as db
 from diffbody.ik._limb_start import limb_start, limbs
 from diffbody.ik._phases import beyond_bound, out_of_reach, phase_layouts
 from diffbody.ik._problem import make_problem
 from diffbody.ik._targets import resolve_targets
-
-
-def _random_limb_poses(body, segments, rng, n):
-    """Pose angles (n, n_seg, 3) with `segments` uniform within their limits, the rest at rest."""
-    rest = body.rest_pose()
-    idx = np.asarray([body.segment_index(s) for s in segments])
-    lo, hi = np.asarray(body.swing_lo)[idx], np.asarray(body.swing_hi)[idx]
-    w = lo + (hi - lo) * rng.uniform(size=(n, len(idx), 2))
-    smax = np.asarray(body.swing_max)[idx]
-    w *= np.minimum(1.0, smax / np.maximum(np.linalg.norm(w, axis=-1), 1e-300))[..., None]
-    tlo, thi = np.asarray(body.twist_lo)[idx], np.asarray(body.twist_hi)[idx]
-    W = np.repeat(np.asarray(db.swing_vector(body, rest.angles))[None], n, 0)
-    W[:, idx] = w
-    T = np.repeat(np.asarray(rest.angles[:, 2])[None], n, 0)
-    T[:, idx] = tlo + (thi - tlo) * rng.uniform(size=(n, len(idx)))
-    return jax.vmap(lambda w, t: db.angles_from_swing(body, w, t))(W, T)
 
 
 @pytest.mark.parametrize(
@@ -42,7 +27,7 @@ def test_the_start_lands_on_most_reachable_targets(male50, effector, segments):
     5 cm of nine in ten (the rest need the solver's polish, where the limits clip the
     start), and it never leaves the limits (the bounded maps)."""
     rest = male50.rest_pose()
-    angles = _random_limb_poses(male50, segments, np.random.default_rng(5), 200)
+    angles = random_limb_angles(male50, segments, np.random.default_rng(5), 200)
     name = effector
     fk = jax.jit(jax.vmap(lambda a: db.forward(male50, db.Pose(rest.position, a))))(angles)
     if "." in name:

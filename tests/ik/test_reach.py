@@ -4,6 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from limb_poses import random_limb_angles
 
 import diffbody as db
 
@@ -146,24 +147,6 @@ ARM_ONLY = dict(segments=ARM, starts=1)
 TIGHT = dict(tol_position=1e-10, tol_angle=1e-10)
 
 
-def _arm_angles(body, rng, n):
-    """(n, n_seg, 3) pose angles: the left arm's swing vectors and twists uniform within its
-    limits (box, then pulled into the cone), the rest of the body in the standard position."""
-    rest = body.rest_pose()
-    w0 = np.asarray(db.swing_vector(body, rest.angles))
-    idx = np.asarray([body.segment_index(s) for s in ARM])
-    lo, hi = np.asarray(body.swing_lo)[idx], np.asarray(body.swing_hi)[idx]
-    w = lo + (hi - lo) * rng.uniform(size=(n, len(idx), 2))
-    smax = np.asarray(body.swing_max)[idx]
-    w *= np.minimum(1.0, smax / np.maximum(np.linalg.norm(w, axis=-1), 1e-300))[..., None]
-    tlo, thi = np.asarray(body.twist_lo)[idx], np.asarray(body.twist_hi)[idx]
-    W = np.repeat(w0[None], n, 0)
-    W[:, idx] = w
-    T = np.repeat(np.asarray(rest.angles[:, 2])[None], n, 0)
-    T[:, idx] = tlo + (thi - tlo) * rng.uniform(size=(n, len(idx)))
-    return jax.vmap(lambda w, t: db.angles_from_swing(body, w, t))(W, T)
-
-
 @pytest.fixture(scope="module")
 def arm_batch(male50):
     """1,000 palm targets made by FK of random in-limit arm poses, then 1,000 random points
@@ -177,7 +160,7 @@ def arm_batch(male50):
     def palm_of(angles):
         return db.forward(male50, db.Pose(rest, angles)).feature_points[palm]
 
-    reachable = np.asarray(palm_of(_arm_angles(male50, rng, 1000)))
+    reachable = np.asarray(palm_of(random_limb_angles(male50, ARM, rng, 1000)))
     shoulder = np.asarray(db.forward(male50, male50.rest_pose()).joint_positions)[
         male50.joint_index("left_shoulder")
     ]
@@ -240,7 +223,9 @@ def test_implicit_gradient_with_respect_to_a_dimension_matches_finite_difference
     its tolerance, and the differences need solves converged far below their step."""
     import equinox as eqx
 
-    true = db.Pose(male50.rest_position, _arm_angles(male50, np.random.default_rng(3), 1)[0])
+    true = db.Pose(
+        male50.rest_position, random_limb_angles(male50, ARM, np.random.default_rng(3), 1)[0]
+    )
     hand, palm = male50.segment_index("left_hand"), male50.feature_index("left_hand.palm")
     fk = db.forward(male50, true)
     targets = [db.Target.position("left_hand.palm", np.asarray(fk.feature_points[palm]))]
@@ -302,7 +287,7 @@ def test_arm_reachable_targets_leave_the_trunk_where_it_was(male50):
     left arm and clavicle within 2 degrees of its swing at rest."""
     rest = male50.rest_pose()
     palm = male50.feature_index("left_hand.palm")
-    angles = _arm_angles(male50, np.random.default_rng(11), 6)
+    angles = random_limb_angles(male50, ARM, np.random.default_rng(11), 6)
     arm = {male50.segment_index(s) for s in ARM + ("left_clavicle",)}
     others = np.asarray([i for i in range(male50.n_segments) if i not in arm])
     w_rest = np.asarray(db.swing_vector(male50, rest.angles))[others]
