@@ -18,6 +18,10 @@ LAB_AXES: dict[str, np.ndarray] = {
 }
 # Decimal exponent that turns a length in these units into metres.
 UNIT_EXPONENTS = {"mm": -3, "cm": -2, "m": 0}
+# A marker whose extent over a trial is under STILL_M while the median marker's is over
+# MOVING_M does not ride on the body (`MarkerTrial.dead`).
+STILL_M = 0.005
+MOVING_M = 0.1
 
 
 class MarkerFileError(ValueError):
@@ -91,6 +95,25 @@ class MarkerTrial:
             self, names=tuple(self.names[i] for i in idx), positions=self.positions[:, idx]
         )
 
+    def dead(self) -> dict[str, str]:
+        """The markers that carry no measurement, with why: "no data" (a gap in every frame)
+        or "does not move" (its extent over the trial is under `STILL_M` while the median
+        marker's exceeds `MOVING_M`: a marker left on the floor, or a file that repeats one
+        value). A standing trial, where nothing moves, flags none for not moving."""
+        seen = self.present
+        extent = np.full(self.n_markers, np.nan)
+        for k in np.flatnonzero(seen.any(axis=0)):
+            p = self.positions[seen[:, k], k]
+            extent[k] = np.linalg.norm(p.max(axis=0) - p.min(axis=0))
+        moving = np.isfinite(extent).any() and np.nanmedian(extent) > MOVING_M
+        out = {}
+        for name, e in zip(self.names, extent):
+            if np.isnan(e):
+                out[name] = "no data"
+            elif moving and e < STILL_M:
+                out[name] = "does not move"
+        return out
+
     def between(self, t0: float, t1: float) -> "MarkerTrial":
         """The frames with t0 <= time <= t1 (1e-9 s of slack for times printed rounded)."""
         keep = (self.times >= t0 - 1e-9) & (self.times <= t1 + 1e-9)
@@ -125,6 +148,14 @@ def lab_rotation(axes) -> np.ndarray:
             "right; a lab frame maps to the world by a rotation (check the sign of one axis)"
         )
     return R
+
+
+def zeros_as_gaps(lab: np.ndarray) -> np.ndarray:
+    """(f, n, 3) positions with every marker at exactly (0, 0, 0) made a gap (NaN): many
+    exporters write "no data" so, and a real marker is never exactly at the lab's origin."""
+    lab = np.array(lab, dtype=float)
+    lab[np.all(lab == 0.0, axis=-1)] = np.nan
+    return lab
 
 
 def rotate_points(R: np.ndarray, p: np.ndarray) -> np.ndarray:

@@ -13,14 +13,16 @@ from ._marker_trial import (
     MarkerTrial,
     lab_rotation,
     rotate_points,
+    zeros_as_gaps,
 )
 from ._trc import read_trc
 
 
-def read_c3d(path, axes="opensim") -> MarkerTrial:
+def read_c3d(path, axes="opensim", zero_is_gap: bool = True) -> MarkerTrial:
     """Read the marker points of a C3D file through ezc3d (the optional extra ``c3d``).
 
-    Points whose residual is negative (the C3D flag for "not seen") are NaN. Units come
+    Points whose residual is negative (the C3D flag for "not seen") are NaN, and so, unless
+    `zero_is_gap` is False, are points at exactly (0, 0, 0) (`zeros_as_gaps`). Units come
     from POINT:UNITS (mm, cm or m). Many C3D labs record Z up: pass ``axes="z-up"`` (or the
     lab's own rotation) for those.
     """
@@ -62,6 +64,8 @@ def read_c3d(path, axes="opensim") -> MarkerTrial:
     residuals = np.asarray(c3d["data"]["meta_points"]["residuals"], dtype=float)
     lab[np.transpose(residuals[0] < 0)] = np.nan
     lab[np.isnan(lab).any(axis=-1)] = np.nan
+    if zero_is_gap:
+        lab = zeros_as_gaps(lab)
     first = int(c3d["header"]["points"]["first_frame"])
     times = (first + np.arange(lab.shape[0])) / rate
     return MarkerTrial(
@@ -69,13 +73,14 @@ def read_c3d(path, axes="opensim") -> MarkerTrial:
     )
 
 
-def read_markers(path, axes="opensim") -> MarkerTrial:
-    """Read a marker file by its extension: .trc (`read_trc`) or .c3d (`read_c3d`)."""
+def read_markers(path, axes="opensim", zero_is_gap: bool = True) -> MarkerTrial:
+    """Read a marker file by its extension: .trc (`read_trc`) or .c3d (`read_c3d`); a
+    marker at exactly (0, 0, 0) is a gap unless `zero_is_gap` is False."""
     suffix = Path(path).suffix.lower()
     if suffix == ".trc":
-        return read_trc(path, axes)
+        return read_trc(path, axes, zero_is_gap)
     if suffix == ".c3d":
-        return read_c3d(path, axes)
+        return read_c3d(path, axes, zero_is_gap)
     raise MarkerFileError(
         f"{path}: unknown marker file type {suffix or '(no extension)'!r}; "
         "diffbody reads .trc and .c3d files"

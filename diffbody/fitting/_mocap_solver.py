@@ -21,6 +21,9 @@ from ._marker_trial import MarkerTrial
 MARKER_SD = 0.01  # m: a marker's rows are its error in units of this
 PULL = 1e-3  # per unit of a free variable: an unobserved direction weighs as 10 um of error
 MIN_MARKERS = 3  # a frame with fewer present markers cannot be placed: FAILED
+# The motion fit's robust loss (`robust_rows`): a marker farther than OUTLIER_SCALES of its
+# scale from the model weighs under a tenth of a close one and is reported as an outlier.
+OUTLIER_SCALES = 3.0
 
 
 def solver(dtype) -> optx.LevenbergMarquardt:
@@ -53,6 +56,20 @@ def masked_targets(target: Array) -> tuple[Array, Array]:
     residuals) and whether each marker is present."""
     present = jnp.all(jnp.isfinite(target), axis=-1)
     return jnp.where(present[..., None], target, 0.0), present
+
+
+def robust_rows(rows: Array, squared: Array, scale: Array) -> Array:
+    """Markers' rows (n, 3) scaled so that their squares sum to Cauchy's loss of each
+    one's distance d, given d^2 (n,) m^2: |rows|^2 c^2 log(1 + d^2 / c^2) / d^2, c = scale
+    (m). Close markers keep
+    their rows (the factor is 1 - d^2 / 4 c^2 + ...); a marker off by decimetres, with a
+    weight 1 / (1 + d^2 / c^2), barely pulls (its rows grow as log d, not d). Smooth with
+    finite derivatives at d = 0."""
+    s = squared / scale**2
+    small = s < 1e-4
+    s_safe = jnp.where(small, 1.0, s)
+    factor = jnp.where(small, 1.0 - s / 4.0, jnp.sqrt(jnp.log1p(s_safe) / s_safe))
+    return rows * factor[:, None]
 
 
 make_problem_jit = eqx.filter_jit(make_problem)

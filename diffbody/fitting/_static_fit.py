@@ -36,6 +36,7 @@ from ._mocap_solver import (
     masked_targets,
     solver,
 )
+from ._motion_limits import LIMITS, motion_limits
 from ._sphere_residuals import scaled
 
 FIT_CHOICES = ("lengths", "radii", "offsets")
@@ -65,6 +66,11 @@ PRIOR_MEASUREMENTS = (
     "footlength",
 )
 STATIC_STEPS = 100
+# The motion fit's robust scale (`StaticFit.marker_scale`): this many times the static RMS
+# (how far a registered marker sits from its measurement with nothing moving: skin, chest
+# depth, marker placement), at least MIN_SCALE_M.
+SCALE_PER_RMS = 2.5
+MIN_SCALE_M = 0.01
 
 
 class StaticFit(eqx.Module):
@@ -82,6 +88,14 @@ class StaticFit(eqx.Module):
     @property
     def converged(self) -> bool:
         return bool(self.status == FitStatus.CONVERGED)
+
+    @property
+    def marker_scale(self) -> float:
+        """m: the robust scale for `fit_motion` on this registration: `SCALE_PER_RMS` times
+        the RMS of the static errors (30 mm on the shipped trial), at least `MIN_SCALE_M`."""
+        e = np.asarray(self.errors)
+        rms = float(np.sqrt(np.mean(e[np.isfinite(e)] ** 2)))
+        return max(SCALE_PER_RMS * rms, MIN_SCALE_M)
 
 
 class _Prior(eqx.Module):
@@ -205,6 +219,7 @@ def scale_and_register(
     prior=True,
     fit=("lengths", "offsets"),
     sex: str | None = None,
+    limits: str = "motion",
 ) -> StaticFit:
     """Scale a body and register its markers on a static trial (module docstring).
 
@@ -222,6 +237,8 @@ def scale_and_register(
             the walk's.
         sex: "male" or "female" for `prior=True` (default: "female" when the body's name
             starts with it, else "male").
+        limits: "motion" (default): the anatomical maximum ranges (`motion_limits`), which
+            the returned body carries; "body": the body's own.
 
     Returns:
         A `StaticFit`: the scaled body, the static pose, the registered marker set (offsets
@@ -233,6 +250,10 @@ def scale_and_register(
             `MIN_MARKERS` markers present in the static trial.
     """
     fit = _fit_names(fit)
+    if limits not in LIMITS:
+        raise ValueError(f"scale_and_register: limits must be one of {LIMITS}, got {limits!r}")
+    if limits == "motion":
+        body = motion_limits(body)
     markerset, static = match_markers(markerset, static.mean_frame())
     template = without_names(body)
     lay = mocap_layout(template, markerset, fit)

@@ -24,6 +24,7 @@ from ._marker_trial import (
     MarkerTrial,
     lab_rotation,
     rotate_points,
+    zeros_as_gaps,
 )
 
 TRC_REQUIRED_KEYS = ("DataRate", "NumFrames", "NumMarkers", "Units")
@@ -65,12 +66,14 @@ def _number(path: str, line: int, col: int, cell: str, what: str, exponent: int 
     )
 
 
-def read_trc(path, axes="opensim") -> MarkerTrial:
+def read_trc(path, axes="opensim", zero_is_gap: bool = True) -> MarkerTrial:
     """Read a TRC marker file (module docstring) into the world frame, in metres.
 
     Args:
         path: the .trc file.
         axes: the lab frame, a name of `LAB_AXES` or a (3, 3) rotation R_world_lab.
+        zero_is_gap: a marker at exactly (0, 0, 0) is a gap, as many exporters write one
+            (`zeros_as_gaps`); False keeps it as a measurement.
 
     Returns:
         `MarkerTrial`; missing markers are NaN.
@@ -205,6 +208,8 @@ def read_trc(path, axes="opensim") -> MarkerTrial:
         ]
     lab = lab.reshape(len(rows), n_markers, 3)
     lab[np.isnan(lab).any(axis=-1)] = np.nan  # a marker with any coordinate missing is missing
+    if zero_is_gap:
+        lab = zeros_as_gaps(lab)
     return MarkerTrial(
         names=names, times=times, positions=rotate_points(R, lab), rate=rate, source=shown
     )
