@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from ._body import Body, Pose, Spine
 from ._descriptors import descriptors
+from ._joint_angles import angle_names, joint_angles, opensim_sign
 from ._kinematics import Kinematics, forward
 from ._limits import STOP_COLUMNS, angles_from_swing, stop_violation, swing_vector, within_limits
 from ._local_frames import bone_descriptors, local_frame, local_frames, smooth_reference
@@ -53,9 +54,12 @@ _FAMILIES = {
     ),
     "files": (
         "BodyFileError",
+        "MotionFileError",
         "load_body",
         "load_spine",
+        "read_mot",
         "save_body",
+        "write_mot",
     ),
     "fitting": (
         "LAB_AXES",
@@ -71,8 +75,11 @@ _FAMILIES = {
         "fit_spheres",
         "fit_spheres_batch",
         "load_markerset",
+        "load_opensim_markerset",
         "match_markers",
+        "motion_limits",
         "read_c3d",
+        "read_ik_tasks",
         "read_markers",
         "read_trc",
         "sample_pose",
@@ -162,9 +169,12 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
     )
     from .files import (
         BodyFileError,
+        MotionFileError,
         load_body,
         load_spine,
+        read_mot,
         save_body,
+        write_mot,
     )
     from .fitting import (
         LAB_AXES,
@@ -180,8 +190,11 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         fit_spheres,
         fit_spheres_batch,
         load_markerset,
+        load_opensim_markerset,
         match_markers,
+        motion_limits,
         read_c3d,
+        read_ik_tasks,
         read_markers,
         read_trc,
         sample_pose,
@@ -317,6 +330,16 @@ __all__ = [
     "scale_and_register",
     "fit_motion",
     "descriptors",
+    "motion_limits",
+    # Motion capture: OpenSim's files and joint angles
+    "load_opensim_markerset",
+    "read_ik_tasks",
+    "joint_angles",
+    "angle_names",
+    "opensim_sign",
+    "MotionFileError",
+    "read_mot",
+    "write_mot",
     # Image sequences (seed 003)
     "JointTree",
     "default_joint_tree",

@@ -2,6 +2,8 @@
 every frame of a motion trial, write the fit (.npz), the scaled body and a picture.
 
     diffbody mocap static.trc walk.trc --markerset opensim-gait --out fit.npz --png fit.png
+    diffbody mocap static.trc walk.trc --markerset gait2354_Scale_MarkerSet.xml \
+        --tasks subject01_Setup_IK.xml --mot angles.mot --trc model_markers.trc
 """
 
 import dataclasses
@@ -32,7 +34,20 @@ def add_mocap_command(sub) -> None:
     p.add_argument(
         "--markerset",
         default="opensim-gait",
-        help="marker set: a shipped name (opensim-gait) or a JSON file (data/markersets/)",
+        help="marker set: a shipped name (opensim-gait), a JSON file (data/markersets/), or "
+        "an OpenSim marker set (.xml, or the <MarkerSet> of an .osim model)",
+    )
+    p.add_argument(
+        "--tasks",
+        default=None,
+        help="OpenSim IK task set (a task-set file or an IK set-up file): which markers the "
+        "motion fit uses (apply) and their weights; default: the marker set's weights",
+    )
+    p.add_argument(
+        "--keep-zeros",
+        action="store_true",
+        help="read a marker at exactly (0, 0, 0) as a position, not as a gap (the default: "
+        "many exporters write 'no data' so)",
     )
     p.add_argument(
         "--axes",
@@ -56,6 +71,10 @@ def add_mocap_command(sub) -> None:
     )
     p.add_argument("--out", default="fit.npz", help="fit to write (.npz, default fit.npz)")
     p.add_argument("--png", default=None, help="PNG of a few fitted frames with their markers")
+    p.add_argument(
+        "--mot", default=None, help="ISB joint angles of every frame, degrees (OpenSim .mot)"
+    )
+    p.add_argument("--trc", default=None, help="the model's markers of every frame (.trc)")
     p.set_defaults(run=_mocap)
 
 
@@ -65,6 +84,17 @@ def _axes(text: str):
     if text not in LAB_AXES:
         raise ValueError(f"--axes {text}: unknown lab axes; use one of {', '.join(LAB_AXES)}")
     return text
+
+
+def _load_markerset(name_or_path: str, body):
+    """A shipped or JSON marker set, or an OpenSim one (.xml, .osim)."""
+    if name_or_path.lower().endswith((".xml", ".osim")):
+        from ..fitting._opensim_files import load_opensim_markerset
+
+        return load_opensim_markerset(name_or_path, body)
+    from ..fitting._markerset import load_markerset
+
+    return load_markerset(name_or_path, body)
 
 
 def _noted(fn, *args, **kwargs):
@@ -84,19 +114,27 @@ def _mocap(args) -> int:
     from ..anthropometry._scaling import SCALE_GROUPS
     from ..files._saving import save_body
     from ..fitting._markers import read_markers
-    from ..fitting._markerset import load_markerset, match_markers
+    from ..fitting._markerset import match_markers
     from ..fitting._motion_fit import fit_motion
+    from ..fitting._opensim_files import read_ik_tasks
     from ..fitting._sphere_fit import FitStatus
     from ..fitting._static_fit import scale_and_register
 
-    check_output("--out", args.out)
-    check_output("--png", args.png)
-    if not args.out.endswith(".npz"):
-        raise ValueError(f"--out {args.out}: the fit is a NumPy archive; give a .npz file name")
+    for flag, path, suffix in (
+        ("--out", args.out, ".npz"),
+        ("--png", args.png, ".png"),
+        ("--mot", args.mot, ".mot"),
+        ("--trc", args.trc, ".trc"),
+    ):
+        check_output(flag, path)
+        if path is not None and not path.lower().endswith(suffix):
+            raise ValueError(f"{flag} {path}: give a {suffix} file name")
     axes = _axes(args.axes)
     # The files before the body: a malformed marker file is told in milliseconds.
-    static = read_markers(args.static, axes=axes)
-    motion = read_markers(args.motion, axes=axes)
+    zero_is_gap = not args.keep_zeros
+    static = read_markers(args.static, axes=axes, zero_is_gap=zero_is_gap)
+    motion = read_markers(args.motion, axes=axes, zero_is_gap=zero_is_gap)
+    tasks = read_ik_tasks(args.tasks) if args.tasks else None
     if args.time is not None:
         whole, motion = motion, motion.between(*args.time)
         if len(motion.times) == 0:
@@ -105,7 +143,7 @@ def _mocap(args) -> int:
                 f"range; its frames run {whole.times[0]:.3f}-{whole.times[-1]:.3f} s"
             )
     body = body_from_args(args)
-    markerset = _noted(load_markerset, args.markerset, body)
+    markerset = _noted(_load_markerset, args.markerset, body)
 
     t0 = time.perf_counter()
     static_fit = _noted(scale_and_register, body, static, markerset, prior=not args.no_prior)
@@ -113,7 +151,24 @@ def _mocap(args) -> int:
     scale_s = time.perf_counter() - t0
     registered, trial = _noted(match_markers, static_fit.markerset, motion)
     t0 = time.perf_counter()
-    out = fit_motion(static_fit.body, registered, trial, start=static_fit.pose, progress=True)
+    weights = None
+    if tasks is not None:
+        unused = [n for n in tasks if n not in registered.names]
+        if unused:
+            print(
+                f"note: {args.tasks}: tasks for markers the fit lacks, ignored: {', '.join(unused)}"
+            )
+        weights = {n: w for n, w in tasks.items() if n in registered.names}
+    out = _noted(
+        fit_motion,
+        static_fit.body,
+        registered,
+        trial,
+        start=static_fit.pose,
+        weights=weights,
+        scale=static_fit.marker_scale,
+        progress=True,
+    )
     fit_s = time.perf_counter() - t0
 
     scaled = dataclasses.replace(static_fit.body, name=f"{body.name}-mocap")
@@ -134,6 +189,7 @@ def _mocap(args) -> int:
         model_markers=np.asarray(out.markers),  # (n_frames, n_markers, 3) m, world
         measured_markers=np.asarray(trial.positions),
         errors=np.asarray(out.errors),  # (n_frames, n_markers) m, NaN where missing
+        outliers=np.asarray(out.outliers),  # (n_frames, n_markers) beyond the robust scale
         rms=np.asarray(out.rms),
         max=np.asarray(out.max),
         status=np.asarray(out.status),
@@ -149,8 +205,8 @@ def _mocap(args) -> int:
     status = np.asarray(out.status)
     converged = int(np.sum(status == FitStatus.CONVERGED))
     worst_frame = int(np.nanargmax(rms))
-    worst = max(per_marker, key=lambda k: per_marker[k][0])
     static_rms = float(np.sqrt(np.mean(np.asarray(static_fit.errors) ** 2)))
+    summary = out.summary()
     print(
         f"{args.static}: {len(static.names)} markers; scaled and registered in {scale_s:.1f} s, "
         f"marker RMS {100 * static_rms:.2f} cm"
@@ -161,16 +217,40 @@ def _mocap(args) -> int:
         f"{converged} of {len(out.times)} frames converged"
     )
     print(
-        f"marker RMS: mean {100 * np.nanmean(rms):.2f} cm, max {100 * rms[worst_frame]:.2f} cm "
-        f"(t = {float(out.times[worst_frame]):.3f} s); largest marker error "
-        f"{100 * np.nanmax(np.asarray(out.max)):.2f} cm"
+        f"marker RMS: {100 * summary['inlier_rms']:.2f} cm over the inliers, "
+        f"{100 * summary['rms']:.2f} cm over all markers (robust scale "
+        f"{100 * out.scale:.1f} cm: an outlier is more than {100 * out.outlier_distance:.1f} "
+        f"cm off); per frame mean {100 * np.nanmean(rms):.2f} cm, max "
+        f"{100 * rms[worst_frame]:.2f} cm (t = {float(out.times[worst_frame]):.3f} s)"
     )
-    print(
-        f"worst marker: {worst} (RMS {100 * per_marker[worst][0]:.2f} cm, "
-        f"max {100 * per_marker[worst][1]:.2f} cm over the frames)"
-    )
+    flagged = out.flagged()
+    if flagged:
+        print(f"faulty markers ({len(flagged)}):")
+        for name, why in flagged.items():
+            print(f"  {name}: {why}")
+    else:
+        print("faulty markers: none")
+    ranked = [n for n in per_marker if np.isfinite(per_marker[n][0]) and n not in flagged]
+    if ranked:
+        worst = max(ranked, key=lambda k: per_marker[k][0])
+        print(
+            f"worst other marker: {worst} (RMS {100 * per_marker[worst][0]:.2f} cm, "
+            f"max {100 * per_marker[worst][1]:.2f} cm over the frames)"
+        )
     spine_path = f" and {body_path.stem}.spine.json" if scaled.spine is not None else ""
     print(f"wrote {out_path} (the fit) and {body_path}{spine_path} (the scaled body)")
+    if args.mot:
+        from ..files._motion_files import write_mot
+
+        write_mot(args.mot, out.times, out.angles(scaled), name=f"{out_path.stem} joint angles")
+        print(f"wrote {args.mot} (ISB joint angles, degrees)")
+    if args.trc:
+        from ..fitting._marker_trial import MarkerTrial
+        from ..fitting._trc import write_trc
+
+        model = MarkerTrial(out.names, out.times, out.markers, trial.rate, args.trc)
+        write_trc(args.trc, model, axes=axes)
+        print(f"wrote {args.trc} (the model's markers, lab axes {axes})")
     if args.png:
         picture(scaled, out, trial.positions, args.png, os.path.basename(args.motion))
         print(f"wrote {args.png}")

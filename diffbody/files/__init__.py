@@ -1,5 +1,5 @@
 """File formats: the body and spine files (JSON, their schema in data/SCHEMA.md), the checks
-every reader shares, and saving a body back to a file."""
+every reader shares, saving a body back to a file, and OpenSim's motion files (.mot)."""
 
 from ._body_file import (
     load_body as load_body,
@@ -9,6 +9,15 @@ from ._data_files import (
 )
 from ._data_files import (
     data_file as data_file,
+)
+from ._motion_files import (
+    MotionFileError as MotionFileError,
+)
+from ._motion_files import (
+    read_mot as read_mot,
+)
+from ._motion_files import (
+    write_mot as write_mot,
 )
 from ._saving import (
     save_body as save_body,

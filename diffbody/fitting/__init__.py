@@ -1,5 +1,6 @@
 """Fitting a body to measurements: sphere clouds, and motion capture (marker files, marker
-sets, scaling and registration on a static trial, every frame of a trial)."""
+sets, scaling and registration on a static trial, every frame of a trial, OpenSim's set-up
+files)."""
 
 from ._clouds import (
     sample_pose as sample_pose,
@@ -45,6 +46,18 @@ from ._motion_fit import (
 )
 from ._motion_fit import (
     fit_motion as fit_motion,
+)
+from ._motion_limits import (
+    MOTION_RANGES as MOTION_RANGES,
+)
+from ._motion_limits import (
+    motion_limits as motion_limits,
+)
+from ._opensim_files import (
+    load_opensim_markerset as load_opensim_markerset,
+)
+from ._opensim_files import (
+    read_ik_tasks as read_ik_tasks,
 )
 from ._sphere_fit import (
     FitStatus as FitStatus,

@@ -21,6 +21,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._batches import map_chunks
 from .._body import Body, Pose, without_names
+from .._joint_angles import angle_names, joint_angles
 from .._solver import FitStatus, Solved, solve
 from ._marker_layout import mocap_layout, rigid_start
 from ._marker_points import model_markers
@@ -135,6 +136,18 @@ class MotionFit(eqx.Module):
     # The markers left out before the fit, with why (`MarkerTrial.dead`): "no data" or
     # "does not move".
     dead: tuple[tuple[str, str], ...] = eqx.field(static=True, default=())
+
+    @property
+    def outlier_distance(self) -> float:
+        """m: the distance beyond which a marker is an outlier in its frame."""
+        return OUTLIER_SCALES * self.scale
+
+    def angles(self, body: Body) -> dict[str, np.ndarray]:
+        """ISB joint angles of every frame (`joint_angles`), degrees, (f,) each; `body` is
+        the body fitted (`StaticFit.body`)."""
+        fn = jax.jit(jax.vmap(lambda pose: joint_angles(body, pose)))
+        out = fn(self.poses)
+        return {k: np.asarray(out[k]) for k in angle_names()}
 
     def pose(self, i: int) -> Pose:
         """Frame i's pose, as JAX arrays (ready for `forward`, `render`, ...)."""
@@ -321,7 +334,7 @@ def fit_motion(
         status=status.astype(int),
         steps=steps.astype(int),
         times=np.asarray(trial.times, float),
-        outliers=np.nan_to_num(err, nan=0.0) > OUTLIER_SCALES * scale,
+        outliers=np.nan_to_num(err, nan=0.0) > OUTLIER_SCALES * scale,  # `outlier_distance`
         scale=scale,
         names=markerset.names,
         kinds=markerset.kinds,

@@ -5,8 +5,11 @@ trial, and its errors on bad input."""
 import numpy as np
 import pytest
 
+from diffbody._joint_angles import angle_names
 from diffbody.cli import main
 from diffbody.files._data_files import data_file
+from diffbody.files._motion_files import read_mot
+from diffbody.fitting._sphere_fit import FitStatus
 from diffbody.fitting._trc import read_trc, write_trc
 
 
@@ -37,18 +40,27 @@ def trials(tmp_path_factory):
 
 def test_mocap_command(trials, tmp_path, capsys):
     out, png = tmp_path / "fit.npz", tmp_path / "fit.png"
-    argv = ["mocap", str(trials[0]), str(trials[1]), "--no-prior"]
-    assert main(argv + ["--out", str(out), "--png", str(png)]) == 0
+    mot, trc = tmp_path / "angles.mot", tmp_path / "model.trc"
+    argv = ["mocap", str(trials[0]), str(trials[1]), "--no-prior", "--mot", str(mot)]
+    assert main(argv + ["--out", str(out), "--png", str(png), "--trc", str(trc)]) == 0
     text = capsys.readouterr().out
-    assert "4 frames" in text and "marker RMS: mean" in text and "worst marker:" in text
-    mean_cm = float(text.split("marker RMS: mean ")[1].split(" cm")[0])
-    assert 0.0 < mean_cm < 3.0  # a real fit, not a failed one
+    assert "4 frames" in text and "faulty markers: none" in text and "worst other marker:" in text
+    inlier_cm = float(text.split("marker RMS: ")[1].split(" cm over the inliers")[0])
+    all_cm = float(text.split("cm over the inliers, ")[1].split(" cm over all markers")[0])
+    assert 0.0 < inlier_cm <= all_cm < 3.0  # a real fit, not a failed one
+    times, angles = read_mot(mot)
+    assert len(times) == 4 and set(angles) == set(angle_names())
+    assert all(np.all(np.isfinite(v)) for v in angles.values())
+    model = read_trc(trc)
+    assert model.n_frames == 4 and model.n_markers == 49
     data = np.load(out)
     n, m = len(data["times"]), len(data["marker_names"])
     assert n == 4 and m == 49
     assert data["angles"].shape == (n, len(data["segment_names"]), 3)
     assert data["model_markers"].shape == data["measured_markers"].shape == (n, m, 3)
     assert data["errors"].shape == (n, m) and data["rms"].shape == data["max"].shape == (n,)
+    assert data["outliers"].shape == (n, m) and not data["outliers"].any()
+    np.testing.assert_allclose(model.positions, data["model_markers"], atol=1e-6)
     # The saved errors are the distances between the saved model and measured markers.
     gap = np.linalg.norm(data["model_markers"] - data["measured_markers"], axis=-1)
     np.testing.assert_allclose(data["errors"], gap, atol=1e-6)
@@ -56,6 +68,20 @@ def test_mocap_command(trials, tmp_path, capsys):
     assert np.all(np.isfinite(data["angles"])) and np.all(data["axial"] > 0)
     assert (tmp_path / "fit.body.json").is_file() and png.stat().st_size > 0
     assert str(tmp_path / "fit.body.json") in text
+
+
+def test_mocap_with_opensims_files(trials, tmp_path, capsys):
+    """OpenSim's marker set (.xml) and IK set-up (--tasks: its 31 applied markers, weights
+    as in the file) drive the command; the set's markers the tasks switch off weigh 0."""
+    out = tmp_path / "fit.npz"
+    argv = ["mocap", str(trials[0]), str(trials[1]), "--no-prior", "--out", str(out)]
+    argv += ["--markerset", str(data_file("mocap/gait2354_Scale_MarkerSet.xml"))]
+    argv += ["--tasks", str(data_file("mocap/subject01_Setup_IK.xml"))]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    data = np.load(out)
+    assert len(data["marker_names"]) == 39 and "4 frames, 39 markers fitted" in text
+    assert np.all(np.isfinite(data["angles"])) and np.all(data["status"] == FitStatus.CONVERGED)
 
 
 def test_mocap_bad_file_exits_2(trials, tmp_path, capsys):
@@ -79,6 +105,8 @@ def test_mocap_bad_file_exits_2(trials, tmp_path, capsys):
         ("--axes", "y-up", "unknown lab axes"),
         ("--out", "fit.json", ".npz"),
         ("--time", "9 10", "no frame"),
+        ("--mot", "angles.csv", ".mot"),
+        ("--tasks", "no-such-setup.xml", "no-such-setup.xml"),
     ],
 )
 def test_mocap_bad_options_exit_2(trials, tmp_path, capsys, option, value, message):

@@ -1,25 +1,21 @@
 """OpenSim's set-up files (diffbody.fitting._opensim_files): the IK task set of the shipped
-set-up and of written files, the marker set of a marker-set file and of a model, where its
-markers land on the default body against opensim-gait.json, and the shipped walk fitted
-with it against opensim-gait.json."""
+set-up and of written files, the marker set of a marker-set file and of a model and where its
+markers land on the default body against opensim-gait.json (the shipped walk fitted with it
+against opensim-gait.json: benchmarks/mocap.py)."""
 
 import re
-import warnings
 
-import jax
 import numpy as np
 import pytest
 
-import diffbody as db
 from diffbody.files._data_files import data_file
 from diffbody.fitting._marker_trial import MarkerFileError
-from diffbody.fitting._markerset import MarkerWarning, load_markerset, world_markers
+from diffbody.fitting._markerset import load_markerset, world_markers
 from diffbody.fitting._opensim_files import (
     OPENSIM_BODIES,
     load_opensim_markerset,
     read_ik_tasks,
 )
-from diffbody.fitting._sphere_fit import FitStatus
 
 SETUP_IK = data_file("mocap/subject01_Setup_IK.xml")
 MARKERSET_XML = data_file("mocap/gait2354_Scale_MarkerSet.xml")
@@ -262,43 +258,3 @@ def test_a_body_without_the_segment(male50, tmp_path):
     )
     with pytest.raises(MarkerFileError, match=r"'RA', field 'body': .*no segment 'right_clavicle'"):
         load_opensim_markerset(path, body)
-
-
-# --- the shipped walk ----------------------------------------------------------------------
-@pytest.mark.xfail(
-    reason="goal missed: mean per-frame RMS 23.0 mm against opensim-gait.json's 17.6 mm over "
-    "the 31 shared markers (5.4 mm; 1.1 mm with each set's own weights instead of the tasks). "
-    "Most of it is the right acromion (98 mm RMS against 20): OpenSim's generic torso places "
-    "it 9 cm above the middle of the clavicle, registration (20 mm tolerance, no arm marker) "
-    "leaves it there, and the walk cannot turn the clavicle onto it; the left shank cluster "
-    "adds 4-7 mm per marker",
-    raises=AssertionError,
-    strict=False,
-)
-def test_the_walk_fit_matches_opensim_gait_within_a_millimetre():
-    """The OpenSim workflow on the shipped example, as the README runs it with
-    opensim-gait.json (float32): `scale_and_register` on the static trial, then `fit_motion`
-    on the whole walk weighted by OpenSim's IK tasks (subject01_Setup_IK.xml), once with
-    OpenSim's marker set and once with opensim-gait.json restricted to the same 39 markers
-    (OpenSim's has no arm or temple markers); the walk fits the 31 both share with it. Goal:
-    the mean per-frame marker RMS within 1 mm of opensim-gait.json's. Every frame of both
-    converges; the figures are in the xfail reason."""
-    with jax.enable_x64(False), warnings.catch_warnings():
-        # The static trial's arm and temple markers are not in either set.
-        warnings.simplefilter("ignore", MarkerWarning)
-        body = db.load_body(variant="male50")
-        static = db.read_trc(data_file("mocap/subject01_static.trc"))
-        walk = db.read_trc(data_file("mocap/subject01_walk1.trc"))
-        tasks = read_ik_tasks(SETUP_IK)
-        osim = load_opensim_markerset(MARKERSET_XML, body)
-        rms = {}
-        for label, ms in (("osim", osim), ("gait", load_markerset("opensim-gait", body))):
-            fit = db.scale_and_register(body, static, ms.select(osim.names))
-            assert int(fit.status) == FitStatus.CONVERGED
-            shared = [n for n in fit.markerset.names if n in walk.names]
-            motion = db.fit_motion(
-                fit.body, fit.markerset.select(shared), walk, start=fit.pose, weights=tasks
-            )
-            assert len(motion.names) == 31 and np.all(motion.status == FitStatus.CONVERGED)
-            rms[label] = float(np.mean(motion.rms))
-    assert abs(rms["osim"] - rms["gait"]) < 0.001, rms
