@@ -12,7 +12,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jaxtyping import Array
+from jaxtyping import Array, ArrayLike
 
 from .._solver import least_squares_solver, tolerance
 from ..ik._problem import make_problem
@@ -58,7 +58,7 @@ def masked_targets(target: Array) -> tuple[Array, Array]:
     return jnp.where(present[..., None], target, 0.0), present
 
 
-def robust_rows(rows: Array, squared: Array, scale: Array) -> Array:
+def robust_rows(rows: Array, squared: Array, scale: ArrayLike) -> Array:
     """Markers' rows (n, 3) scaled so that their squares sum to Cauchy's loss of each
     one's distance d, given d^2 (n,) m^2: |rows|^2 c^2 log(1 + d^2 / c^2) / d^2, c = scale
     (m). Close markers keep

@@ -40,6 +40,9 @@ from ._mocap_solver import (
 from ._motion_limits import LIMITS, motion_limits
 
 FRAME_STEPS = 100
+# The first frame's solves start far (the static pose, the standard position): more steps.
+FIRST_FRAME_STEPS = 300
+WIDE = 10.0  # the first of a frame's two solves runs at this many robust scales
 # m: the robust loss's scale when no static fit gives one (`StaticFit.marker_scale`).
 DEFAULT_SCALE = 0.03
 
@@ -52,12 +55,20 @@ def _frame_residuals(x: Array, args) -> Array:
     return jnp.concatenate([rows.ravel(), PULL * (x - anchor)])
 
 
-def _solve_frame(problem, lay, offsets, scale, x_start, anchor, target, sqrt_w):
-    """One frame's posture from x_start, weakly pulled toward `anchor`: (x, status, steps).
-    A frame with fewer than `MIN_MARKERS` markers keeps x_start (FAILED)."""
-    args = (problem, lay, offsets, target, sqrt_w, anchor, scale)
+def _solve_frame(problem, lay, offsets, scale, x_start, anchor, target, sqrt_w, steps=FRAME_STEPS):
+    """One frame's posture from x_start, weakly pulled toward `anchor`: `Solved`. Graduated:
+    first at `WIDE` times the robust scale, then at the scale from there (a marker the start
+    leaves farther than a few scales off still pulls in the first solve: from a far start,
+    the robust loss alone would give up on the very markers that must move). A frame with
+    fewer than `MIN_MARKERS` markers keeps x_start (FAILED)."""
     enough = jnp.sum(sqrt_w > 0) >= MIN_MARKERS
-    return solve(_frame_residuals, solver(x_start.dtype), x_start, args, FRAME_STEPS, enough)
+    args = (problem, lay, offsets, target, sqrt_w, anchor, scale)
+    wide = solve(
+        _frame_residuals, solver(x_start.dtype), x_start, args[:-1] + (WIDE * scale,), steps, enough
+    )
+    out = solve(_frame_residuals, solver(x_start.dtype), wide.value, args, steps, enough)
+    status = jnp.where(wide.status == FitStatus.FAILED, wide.status, out.status)
+    return Solved(out.value, status, wide.steps + out.steps)
 
 
 def _first_frame(problem, lay, offsets, scale, starts, anchor, target, sqrt_w):
@@ -68,7 +79,8 @@ def _first_frame(problem, lay, offsets, scale, starts, anchor, target, sqrt_w):
     def from_start(x):
         p = model_markers(problem, lay, offsets, x)
         x = x.at[-6:].set(rigid_start(lay, p, target, sqrt_w > 0, problem.position0))
-        x, status, steps = _solve_frame(problem, lay, offsets, scale, x, anchor, target, sqrt_w)
+        frame = (anchor, target, sqrt_w)
+        x, status, steps = _solve_frame(problem, lay, offsets, scale, x, *frame, FIRST_FRAME_STEPS)
         cost = jnp.sum(_frame_residuals(x, args) ** 2)
         return x, status, steps, jnp.where(status == FitStatus.FAILED, jnp.inf, cost)
 
@@ -160,15 +172,24 @@ class MotionFit(eqx.Module):
         return {n: (float(r), float(m)) for n, r, m in zip(self.names, rms, worst)}
 
     def flagged(self) -> dict[str, str]:
-        """The faulty markers, with why: each one left out ("no data", "does not move") and
-        each one an outlier in more than `FLAG_SHARE` of the frames that see it ("outlier in
-        12 % of frames")."""
+        """The faulty markers, with why: each one left out ("no data", "does not move"),
+        each one missing in more than `FLAG_SHARE` of the frames ("missing in 10 % of
+        frames": gaps, or zeros read as gaps) and each one an outlier in more than
+        `FLAG_SHARE` of the frames that see it ("outlier in 12 % of frames")."""
         out = dict(self.dead)
         seen = np.isfinite(self.errors).sum(axis=0)
+        missing = 1.0 - seen / max(len(self.times), 1)
         share = self.outliers.sum(axis=0) / np.maximum(seen, 1)
-        for name, s in zip(self.names, share):
+        for name, gone, s in zip(self.names, missing, share):
+            if name in out:
+                continue
+            why = []
+            if gone > self.FLAG_SHARE:
+                why.append(f"missing in {100 * gone:.0f} % of frames")
             if s > self.FLAG_SHARE:
-                out[name] = f"outlier in {100 * s:.0f} % of frames"
+                why.append(f"outlier in {100 * s:.0f} % of frames")
+            if why:
+                out[name] = ", ".join(why)
         return out
 
     def summary(self) -> dict[str, float]:
@@ -195,7 +216,7 @@ def _rms_max(errors: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
     count = seen.sum(axis=axis)
     squares = np.where(seen, errors, 0.0) ** 2
     rms = np.where(count > 0, np.sqrt(squares.sum(axis) / np.maximum(count, 1)), np.nan)
-    worst = np.where(count > 0, np.where(seen, errors, -np.inf).max(axis), np.nan)
+    worst = np.where(count > 0, np.where(seen, errors, -np.inf).max(axis, initial=-np.inf), np.nan)
     return rms, worst
 
 

@@ -52,8 +52,10 @@ MOTION_RANGES: dict[str, tuple] = {
 
 
 def motion_limits(body: Body) -> Body:
-    """The body with `MOTION_RANGES` for its limbs (module docstring); segments the table
-    does not name keep their limits. Idempotent: a body that has them is returned equal."""
+    """The body with `MOTION_RANGES` for its limbs (module docstring), each interval the
+    union of the body's own and the table's (never narrower than the body's: a default
+    range past a reference figure stays); segments the table does not name keep their
+    limits. Idempotent."""
     lo = np.array(body.swing_lo, dtype=float)
     hi = np.array(body.swing_hi, dtype=float)
     cone = np.array(body.swing_max, dtype=float)
@@ -66,18 +68,23 @@ def motion_limits(body: Body) -> Body:
                 continue
             i = body.segment_index(name)
             if sx is not None and body.limit_kind[i] != "hinge":  # a hinge keeps w_x = 0
-                lo[i, 0], hi[i, 0] = _mirrored(sx, sign)
+                lo[i, 0], hi[i, 0] = _wider((lo[i, 0], hi[i, 0]), _mirrored(sx, sign))
             if sy is not None:
-                lo[i, 1], hi[i, 1] = np.radians(sy)
+                lo[i, 1], hi[i, 1] = _wider((lo[i, 1], hi[i, 1]), np.radians(sy))
             if tw is not None:
-                t_lo[i], t_hi[i] = _mirrored(tw, sign)
+                t_lo[i], t_hi[i] = _wider((t_lo[i], t_hi[i]), _mirrored(tw, sign))
             if swing_max is not None:
-                cone[i] = np.radians(swing_max)
+                cone[i] = max(cone[i], np.radians(swing_max))
     dtype = body.lengths.dtype
     arrays = tuple(jnp.asarray(a, dtype) for a in (lo, hi, cone, t_lo, t_hi))
     return eqx.tree_at(
         lambda b: (b.swing_lo, b.swing_hi, b.swing_max, b.twist_lo, b.twist_hi), body, arrays
     )
+
+
+def _wider(own, table) -> tuple[float, float]:
+    """The union of two intervals: a body whose own range passes a table figure keeps it."""
+    return min(own[0], table[0]), max(own[1], table[1])
 
 
 def _mirrored(interval, sign: float) -> tuple[float, float]:

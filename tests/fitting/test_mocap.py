@@ -8,6 +8,7 @@ markers come from `world_markers` (the walk of `forward`, not the fit's own kern
 static fit and one motion fit shape are compiled for the whole module."""
 
 import dataclasses
+import re
 import warnings
 
 import equinox as eqx
@@ -31,7 +32,7 @@ from diffbody.fitting._marker_points import tree_markers
 from diffbody.fitting._marker_trial import MarkerTrial
 from diffbody.fitting._markerset import MarkerWarning, load_markerset, scale_offsets, world_markers
 from diffbody.fitting._mocap_solver import MIN_MARKERS, robust_rows
-from diffbody.fitting._motion_fit import fit_motion
+from diffbody.fitting._motion_fit import FRAME_STEPS, fit_motion
 from diffbody.fitting._motion_limits import MOTION_RANGES, motion_limits
 from diffbody.fitting._sphere_fit import FitStatus
 from diffbody.fitting._static_fit import PRIOR_MEASUREMENTS, population_prior, scale_and_register
@@ -192,13 +193,17 @@ def test_noisy_motion_errors_are_the_noise(motion, subject, static_fit):
     assert summary["anatomical_rms"] > 0 and summary["tracking_rms"] > 0
 
 
-def test_missing_markers(motion, subject):
-    """A marker missing in some frames, another in every frame: every frame still fits its
-    present markers exactly, and the errors are NaN where a marker was missing."""
+def test_missing_markers(motion, subject, static_fit):
+    """A marker missing in some frames, another in every frame (dead: one warning names it):
+    every frame still fits its present markers exactly, and the errors are NaN where a
+    marker was missing."""
     walk = subject["walk"].copy()
     walk[1:3, 5] = np.nan
     walk[:, 20] = np.nan
-    fit = motion(walk)
+    name = static_fit.markerset.names[20]
+    with pytest.warns(MarkerWarning, match=re.escape(f"{name} (no data)")):
+        fit = motion(walk)
+    assert fit.dead == ((fit.names[20], "no data"),)
     assert np.all(fit.status == FitStatus.CONVERGED)
     missing = np.isnan(walk).any(-1)
     assert np.array_equal(np.isnan(fit.errors), missing)
@@ -350,23 +355,26 @@ def faulted_fits(shipped, tmp_path_factory):
 @pytest.mark.parametrize("kind", FAULTS)
 def test_a_faulty_marker_changes_nothing_else(shipped, faulted_fits, kind):
     """Each fault: every frame converges; the RMS over the untouched markers stays within
-    2 mm of the clean fit's (measured: within 0.4 mm); the first frame within 20 % of the
-    median; `flagged` names the faulty markers and nothing else (dead: "no data", with
-    one warning naming it; the others: outliers in more than 5 % of the frames that see
-    them)."""
+    2 mm of the clean fit's (measured: within 0.8 mm); the first frame's RMS over them
+    within 20 % of their median frame's; `flagged` names the faulty markers and nothing
+    else (dead: "no data", with one warning naming it; zeros in 10 % of the frames: missing
+    there; the others: outliers in more than 5 % of the frames that see them)."""
     _, clean, _ = shipped
     motion, touched, caught = faulted_fits[kind]
     keep = [k for k, n in enumerate(clean.names) if n not in touched]
     assert motion.names == clean.names and np.all(motion.status == FitStatus.CONVERGED)
     rms = [np.sqrt(np.nanmean(m.errors[:, keep] ** 2)) for m in (motion, clean)]
     assert abs(rms[0] - rms[1]) < 0.002, rms
-    assert abs(motion.rms[0] - np.median(motion.rms)) < 0.2 * np.median(motion.rms)
+    frames = np.sqrt(np.nanmean(motion.errors[:, keep] ** 2, axis=1))
+    assert abs(frames[0] - np.median(frames)) < 0.2 * np.median(frames)
     flagged = motion.flagged()
     assert set(flagged) == set(touched), flagged
     if kind == "dead":
         dead = motion.names.index("L.Elbow")
         assert flagged == {"L.Elbow": "no data"} and np.isnan(motion.errors[:, dead]).all()
         assert len(caught) == 1 and "L.Elbow (no data)" in caught[0]
+    elif kind == "gaps":
+        assert flagged == {"R.Heel": "missing in 10 % of frames"} and not caught
     else:
         assert all(why.startswith("outlier in") for why in flagged.values()) and not caught
         assert motion.summary()["inlier_rms"] < motion.summary()["rms"]
@@ -428,7 +436,8 @@ def test_float64_motion_fit_converges_on_real_data(male50):
     motion = db.fit_motion(fit.body, ms, part, start=fit.pose, scale=fit.marker_scale)
     assert motion.markers.dtype == np.float64 and motion.status.shape == (13,)
     assert np.all(motion.status == FitStatus.CONVERGED), motion.steps
-    assert np.all(motion.steps < 100) and 0.019 < np.mean(motion.rms) < 0.022
+    # Two solves a frame (`_solve_frame`), each within its limit; the first from two starts.
+    assert np.all(motion.steps[1:] < 2 * FRAME_STEPS) and 0.019 < np.mean(motion.rms) < 0.022
 
 
 # --- bad input ------------------------------------------------------------------------------
