@@ -40,8 +40,6 @@ from ._mocap_solver import (
 from ._motion_limits import LIMITS, motion_limits
 
 FRAME_STEPS = 100
-# The first frame's solves start far (the static pose, the standard position): more steps.
-FIRST_FRAME_STEPS = 300
 WIDE = 10.0  # the first of a frame's two solves runs at this many robust scales
 # m: the robust loss's scale when no static fit gives one (`StaticFit.marker_scale`).
 DEFAULT_SCALE = 0.03
@@ -55,46 +53,31 @@ def _frame_residuals(x: Array, args) -> Array:
     return jnp.concatenate([rows.ravel(), PULL * (x - anchor)])
 
 
-def _solve_frame(problem, lay, offsets, scale, x_start, anchor, target, sqrt_w, steps=FRAME_STEPS):
-    """One frame's posture from x_start, weakly pulled toward `anchor`: `Solved`. Graduated:
-    first at `WIDE` times the robust scale, then at the scale from there (a marker the start
-    leaves farther than a few scales off still pulls in the first solve: from a far start,
-    the robust loss alone would give up on the very markers that must move). A frame with
-    fewer than `MIN_MARKERS` markers keeps x_start (FAILED)."""
+def _solve_frame(problem, lay, offsets, scale, x_start, anchor, target, sqrt_w) -> Solved:
+    """One frame's posture at one robust scale from x_start, weakly pulled toward `anchor`.
+    A frame with fewer than `MIN_MARKERS` markers keeps x_start (FAILED)."""
+    args = (problem, lay, offsets, target, sqrt_w, anchor, scale)
     enough = jnp.sum(sqrt_w > 0) >= MIN_MARKERS
-    args = (problem, lay, offsets, target, sqrt_w, anchor, scale)
-    wide = solve(
-        _frame_residuals, solver(x_start.dtype), x_start, args[:-1] + (WIDE * scale,), steps, enough
-    )
-    out = solve(_frame_residuals, solver(x_start.dtype), wide.value, args, steps, enough)
-    status = jnp.where(wide.status == FitStatus.FAILED, wide.status, out.status)
-    return Solved(out.value, status, wide.steps + out.steps)
+    return solve(_frame_residuals, solver(x_start.dtype), x_start, args, FRAME_STEPS, enough)
 
 
-def _first_frame(problem, lay, offsets, scale, starts, anchor, target, sqrt_w):
-    """The first frame from each of `starts` (k, n_free), moved rigidly onto its markers
-    like the anchor: the answer of least robust cost (`Solved`, the steps of all)."""
-    args = (problem, lay, offsets, target, sqrt_w, anchor, scale)
-
-    def from_start(x):
-        p = model_markers(problem, lay, offsets, x)
-        x = x.at[-6:].set(rigid_start(lay, p, target, sqrt_w > 0, problem.position0))
-        frame = (anchor, target, sqrt_w)
-        x, status, steps = _solve_frame(problem, lay, offsets, scale, x, *frame, FIRST_FRAME_STEPS)
-        cost = jnp.sum(_frame_residuals(x, args) ** 2)
-        return x, status, steps, jnp.where(status == FitStatus.FAILED, jnp.inf, cost)
-
-    xs, status, steps, cost = jax.vmap(from_start)(starts)
-    best = jnp.argmin(cost)
-    return Solved(xs[best], status[best], jnp.sum(steps))
+# Where a solve of `_fit_frames`' scan starts: the previous solve's answer, a given start
+# (a first-frame try), the best try's answer (the first frame proper).
+FROM_PREVIOUS, FROM_START, FROM_BEST = 0, 1, 2
 
 
 def _fit_frames(problem, lay, offsets, scale, starts, measured, sqrt_w, x_first, init: Pose):
-    """Every frame of a chunk, in order (lax.scan), each from its predecessor's answer,
-    the first from x_first, or where it is NaN (the trial's first frame) from the best of
-    `starts` (`_first_frame`). Each frame's anchor is the start moved rigidly onto its rigid
-    markers. Returns the poses, model markers, errors (NaN where missing), statuses, steps
-    and the last free vector. measured: (b, n, 3), NaN where missing."""
+    """Every frame of a chunk, in order, each from its predecessor's answer, in two solves:
+    first at `WIDE` times the robust scale, then at the scale from there (graduated: from a
+    far start the robust loss alone gives up on the very markers that must move; the first
+    is skipped where no marker is past the outlier distance from the start). The
+    chunk's first frame is first tried from each of `starts` (k, n_free), each moved
+    rigidly onto the frame's markers (the trial's first frame; x_first NaN), or from x_first
+    k times (a later chunk); the try of least robust cost starts the frame. Tries, stages
+    and frames are the steps of one `lax.scan` over one traced solve. Each frame's anchor is
+    the start moved rigidly onto its rigid markers. Returns the poses, model markers, errors
+    (NaN where missing), statuses, steps (both stages', the tries' added to the first
+    frame's) and the last free vector. measured: (b, n, 3), NaN where missing."""
     target, present = masked_targets(measured)
     p0 = model_markers(problem, lay, offsets, problem.x0)
 
@@ -102,23 +85,56 @@ def _fit_frames(problem, lay, offsets, scale, starts, measured, sqrt_w, x_first,
         root = rigid_start(lay, p0, t, w > 0, problem.position0)
         return problem.x0.at[-6:].set(root)
 
+    def placed(x):
+        p = model_markers(problem, lay, offsets, x)
+        return x.at[-6:].set(rigid_start(lay, p, target[0], present[0], problem.position0))
+
     anchor = jax.vmap(anchor_of)(target, sqrt_w)
-    frame = (anchor[0], target[0], sqrt_w[0])
-    x0, status0, steps0 = jax.lax.cond(
-        jnp.all(jnp.isfinite(x_first)),
-        lambda: _solve_frame(problem, lay, offsets, scale, x_first, *frame),
-        lambda: _first_frame(problem, lay, offsets, scale, starts, *frame),
-    )
+    k, b = starts.shape[0], len(target)
+    carried = jnp.all(jnp.isfinite(x_first))
+    tries = jnp.where(carried, x_first[None], jax.vmap(placed)(starts))
+    # The scan's solves: k tries of frame 0, then the b frames, each in two stages.
+    frame = np.repeat(np.concatenate([np.zeros(k, int), np.arange(b)]), 2)
+    wide = np.tile([True, False], k + b)
+    source = np.full(2 * (k + b), FROM_PREVIOUS)
+    source[0 : 2 * k : 2] = FROM_START
+    source[2 * k] = FROM_BEST
+    try_end = np.zeros(2 * (k + b), bool)
+    try_end[1 : 2 * k : 2] = True
+    start = np.minimum(np.arange(2 * (k + b)) // 2, k - 1)
+    steps_in = (anchor[frame], target[frame], sqrt_w[frame], wide, source, try_end, start)
 
-    def step(x_prev, frame):
-        x, status, steps = _solve_frame(problem, lay, offsets, scale, x_prev, *frame)
-        return x, (x, status, steps)
+    def step(carry, inputs):
+        x_prev, x_best, best = carry
+        anchor, target, sqrt_w, wide, source, try_end, start = inputs
+        x0 = jnp.select([source == FROM_START, source == FROM_BEST], [tries[start], x_best], x_prev)
+        c = jnp.where(wide, WIDE * scale, scale)
+        # The wide stage only where the start leaves a marker past the outlier distance.
+        d = model_markers(problem, lay, offsets, x0) - target
+        far = (
+            jnp.max(jnp.where(sqrt_w > 0, jnp.sum(d * d, axis=-1), 0.0))
+            > (OUTLIER_SCALES * scale) ** 2
+        )
 
-    rest = (anchor[1:], target[1:], sqrt_w[1:])
-    last, (xs, status, steps) = jax.lax.scan(step, x0, rest)
-    xs = jnp.concatenate([x0[None], xs])
-    status = jnp.concatenate([status0[None], status])
-    steps = jnp.concatenate([steps0[None], steps])
+        def solved() -> Solved:
+            out = _solve_frame(problem, lay, offsets, c, x0, anchor, target, sqrt_w)
+            return Solved(out.value, out.status, out.steps.astype(jnp.int32))
+
+        skipped = Solved(x0, jnp.int32(FitStatus.CONVERGED), jnp.int32(0))
+        x, status, steps = jax.lax.cond(wide & ~far, lambda: skipped, solved)
+        args = (problem, lay, offsets, target, sqrt_w, anchor, scale)
+        cost = jnp.where(
+            status == FitStatus.FAILED, jnp.inf, jnp.sum(_frame_residuals(x, args) ** 2)
+        )
+        better = try_end & (cost < best)
+        carry = (x, jnp.where(better, x, x_best), jnp.where(better, cost, best))
+        return carry, (x, status, steps)
+
+    inf = jnp.asarray(jnp.inf, tries.dtype)
+    (last, _, _), (xs, status, steps) = jax.lax.scan(step, (tries[0], tries[0], inf), steps_in)
+    xs, status = xs[2 * k + 1 :: 2], status[2 * k + 1 :: 2]
+    steps = steps.reshape(k + b, 2).sum(axis=1)
+    steps = steps[k:].at[0].add(jnp.sum(steps[:k]))
     p = jax.vmap(lambda x: model_markers(problem, lay, offsets, x))(xs)
     errors = jnp.where(present, jnp.linalg.norm(p - target, axis=-1), jnp.nan)
     poses = jax.vmap(problem.pose, in_axes=(0, None))(xs, init)
