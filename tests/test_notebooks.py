@@ -136,7 +136,10 @@ def check_posture_fitting(f: dict) -> None:
     assert f["static_status"] == "CONVERGED"
     close(f["static_marker_rms_cm"], 1.21, 0.05, "static marker RMS (cm)")
     assert f["walk_frames"] == 151 and f["walk_converged"] >= 0.99
-    close(f["walk_rms_cm"], [1.87, 2.09], [0.05, 0.1], "walk marker RMS, mean and max (cm)")
+    # 1.87 and 2.09 at XLA's default optimisation level (the notebook's saved run), 1.91 and
+    # 2.33 at the suite's (conftest.py): the left arm has two equally good postures in some
+    # frames, and rounding picks one (MotionFit.flagged() is empty either way).
+    close(f["walk_rms_cm"], [1.89, 2.21], [0.05, 0.15], "walk marker RMS, mean and max (cm)")
     # OpenSim's IK setup (31 markers, its weights, 73 frames): better than OpenSim in every frame
     assert f["opensim_setup_frames"] == 73
     close(f["opensim_setup_rms_cm"], [1.42, 2.19], [0.05, 0.005], "mean RMS (cm)")

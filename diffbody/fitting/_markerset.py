@@ -90,7 +90,7 @@ class MarkerSet(eqx.Module):
 
 
 # --- loading -------------------------------------------------------------------------------
-class _Entry(Where):
+class MarkerEntry(Where):
     """Where we are in a marker set file; its failures are `MarkerFileError`s."""
 
     def fail(self, field: str | None, message: str) -> MarkerFileError:
@@ -111,7 +111,7 @@ def markerset_file(name_or_path) -> Path:
         raise unknown_name_error("marker set", text, shipped) from None
 
 
-def _named(where: _Entry, field: str, kind: str, name: Any, valid: tuple[str, ...]) -> int:
+def _named(where: MarkerEntry, field: str, kind: str, name: Any, valid: tuple[str, ...]) -> int:
     """Index of `name` among `valid`, or an error naming the field with close matches."""
     if not isinstance(name, str) or name not in valid:
         hint = unknown_name_error(kind, str(name), valid).args[0]
@@ -130,7 +130,9 @@ def _ray_exit(origins: np.ndarray, radii: np.ndarray, start: np.ndarray, d: np.n
     return best if best > 0 else math.nan
 
 
-def _resolve(where: _Entry, entry: dict, body: Body, rest, seg: int, axes: str, radius: float):
+def resolve_offset(
+    where: MarkerEntry, entry: dict, body: Body, rest, seg: int, axes: str, radius: float
+):
     """A marker's offset (3,) in its segment's cross of axes, standard position (`rest`:
     the standard position's joints and sphere centres, `rest_geometry`)."""
     R_world_seg = np.asarray(body.R_socket_rest[seg])  # standard position: socket = world
@@ -204,7 +206,7 @@ def load_markerset(name_or_path, body: Body) -> MarkerSet:
     path = markerset_file(name_or_path)
     shown = str(path)
     doc = read_json(path, "marker set", MarkerFileError)
-    top = _Entry(shown, "top level")
+    top = MarkerEntry(shown, "top level")
     top.fields(doc, TOP_FIELDS, TOP_OPTIONAL)
     if doc["schema"] != SCHEMA:
         raise top.fail("schema", f"expected {SCHEMA!r}, got {doc['schema']!r}")
@@ -228,7 +230,7 @@ def load_markerset(name_or_path, body: Body) -> MarkerSet:
     names, segs, kinds, offsets, tolerances, weights = [], [], [], [], [], []
     for k, entry in enumerate(markers):
         label = entry.get("name") if isinstance(entry, dict) else None
-        where = _Entry(shown, f"marker {label!r} (markers[{k}])" if label else f"markers[{k}]")
+        where = MarkerEntry(shown, f"marker {label!r} (markers[{k}])" if label else f"markers[{k}]")
         where.fields(entry, MARKER_FIELDS, MARKER_OPTIONAL)
         marker = where.string(entry, "name")
         if marker in names:
@@ -264,7 +266,7 @@ def load_markerset(name_or_path, body: Body) -> MarkerSet:
         names.append(marker)
         segs.append(seg)
         kinds.append(kind)
-        offsets.append(_resolve(where, entry, body, rest, seg, axes, radius))
+        offsets.append(resolve_offset(where, entry, body, rest, seg, axes, radius))
         tolerances.append(tolerance)
         weights.append(weight)
     dtype = body.lengths.dtype

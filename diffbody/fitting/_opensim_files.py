@@ -13,7 +13,7 @@ y to the body's left, z up. A marker of OpenSim body b is carried to our segment
 
 with q_b the point of b's frame at our segment's proximal joint and k_b = (our length) /
 (OpenSim's length) (`OPENSIM_BODIES`), then resolved as a `diffbody.markerset/1` "offset" in
-"standard" axes (`_markerset._resolve`).
+"standard" axes (`_markerset.resolve_offset`).
 """
 
 import dataclasses
@@ -26,7 +26,7 @@ import numpy as np
 
 from .._body import Body, rest_geometry
 from ._marker_trial import LAB_AXES, MarkerFileError
-from ._markerset import DEFAULT_MARKER_RADIUS, MarkerSet, _Entry, _resolve
+from ._markerset import DEFAULT_MARKER_RADIUS, MarkerEntry, MarkerSet, resolve_offset
 
 # An OpenSim body frame in the default pose has the axes of OpenSim's lab (x forward, y up,
 # z right): d_std = R_STD_OSIM @ d_osim.
@@ -292,7 +292,7 @@ def load_opensim_markerset(path, body: Body) -> MarkerSet:
 
     names, segs, kinds, offsets, tolerances = [], [], [], [], []
     for name, el in markers:
-        where = _Entry(shown, f"marker {name!r}")
+        where = MarkerEntry(shown, f"marker {name!r}")
         osim_body = _body_name(el)
         if osim_body not in OPENSIM_BODIES:
             raise where.fail(
@@ -337,7 +337,9 @@ def load_opensim_markerset(path, body: Body) -> MarkerSet:
         segs.append(seg)
         kinds.append(kind)
         offsets.append(
-            _resolve(where, {"offset": offset}, body, rest, seg, "standard", DEFAULT_MARKER_RADIUS)
+            resolve_offset(
+                where, {"offset": offset}, body, rest, seg, "standard", DEFAULT_MARKER_RADIUS
+            )
         )
         tolerances.append(tolerance)
     dtype = body.lengths.dtype
