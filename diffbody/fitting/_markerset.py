@@ -269,10 +269,15 @@ def load_markerset(name_or_path, body: Body) -> MarkerSet:
         offsets.append(resolve_offset(where, entry, body, rest, seg, axes, radius))
         tolerances.append(tolerance)
         weights.append(weight)
+    return built_markerset(name, shown, names, segs, kinds, offsets, tolerances, weights, body)
+
+
+def built_markerset(name, source, names, segs, kinds, offsets, tolerances, weights, body):
+    """A `MarkerSet` of per-marker lists, its arrays in the body's dtype."""
     dtype = body.lengths.dtype
     return MarkerSet(
         name=name,
-        source=shown,
+        source=source,
         names=tuple(names),
         segments=tuple(segs),
         kinds=tuple(kinds),

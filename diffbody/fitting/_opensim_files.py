@@ -21,12 +21,17 @@ import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 
 from .._body import Body, rest_geometry
 from ._marker_trial import LAB_AXES, MarkerFileError
-from ._markerset import DEFAULT_MARKER_RADIUS, MarkerEntry, MarkerSet, resolve_offset
+from ._markerset import (
+    DEFAULT_MARKER_RADIUS,
+    MarkerEntry,
+    MarkerSet,
+    built_markerset,
+    resolve_offset,
+)
 
 # An OpenSim body frame in the default pose has the axes of OpenSim's lab (x forward, y up,
 # z right): d_std = R_STD_OSIM @ d_osim.
@@ -342,14 +347,6 @@ def load_opensim_markerset(path, body: Body) -> MarkerSet:
             )
         )
         tolerances.append(tolerance)
-    dtype = body.lengths.dtype
-    return MarkerSet(
-        name=markerset.get("name") or Path(path).stem,
-        source=shown,
-        names=tuple(names),
-        segments=tuple(segs),
-        kinds=tuple(kinds),
-        offsets=jnp.asarray(np.array(offsets), dtype),
-        tolerances=jnp.asarray(np.array(tolerances), dtype),
-        weights=jnp.ones(len(names), dtype),
-    )
+    name = markerset.get("name") or Path(path).stem
+    weights = np.ones(len(names))
+    return built_markerset(name, shown, names, segs, kinds, offsets, tolerances, weights, body)
