@@ -22,6 +22,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._body import Body, Pose
 from .._solver import FitStatus, least_squares_solver, solve, tolerance
+from ._constraints import WEIGHT
 from ._limb_start import limb_start
 from ._problem import Problem, make_problem
 from ._starts import nth_start
@@ -61,11 +62,15 @@ def _residuals(x: Array, args: tuple[Problem, TargetSet, Array]) -> Array:
     return problem.residuals(x, targets)
 
 
-def _close_enough(targets: TargetSet, tol_position: Array, tol_angle: Array) -> Array:
-    """Per target row, the weighted residual below which the solve may stop early."""
+def _close_enough(
+    targets: TargetSet, tol_position: Array, tol_angle: Array, n_constraint_rows: int
+) -> Array:
+    """Per target and constraint row, the weighted residual below which the solve may stop
+    early."""
     p = jnp.repeat(targets.point_weight * tol_position, 3)
     a = jnp.repeat(targets.axis_weight * tol_angle, 3)
-    return 0.01 * jnp.concatenate([p, a])
+    c = jnp.full(n_constraint_rows, WEIGHT * tol_position)
+    return 0.01 * jnp.concatenate([p, a, c])
 
 
 def no_gradient(tree):
@@ -141,7 +146,9 @@ def solve_free(
     x0 = jnp.where(fresh, x0, x)
     if not layout.n_free:
         return x0, jnp.asarray(0), jnp.asarray(True)
-    args = (problem, safe, _close_enough(safe, tol_position, tol_angle))
+    n_rows = jax.eval_shape(problem.residuals, x0, safe).shape[0]
+    n_constraint_rows = n_rows - layout.n_free - 3 * (len(layout.points) + len(layout.axis_slot))
+    args = (problem, safe, _close_enough(safe, tol_position, tol_angle, n_constraint_rows))
     solver = reach_solver(x0.dtype) if solver is None else solver
     out = solve(_residuals, solver, x0, args, max_steps)
     return out.value, jnp.asarray(out.steps), out.status != FitStatus.NOT_CONVERGED
@@ -164,10 +171,12 @@ def assess(
     problem = make_problem(body, layout, init)
     if differentiable and layout.n_free:
         x = implicit(problem, safe, x)
-    err_p, err_a = problem.errors(x, safe)
+    err_p, err_a, violation = problem.errors(x, safe)
     ok = jnp.all(jnp.where(ok_p, err_p <= tol_position, True))
     ok &= jnp.all(jnp.where(ok_a, err_a <= tol_angle, True))
+    ok &= jnp.all(violation <= tol_position)
     cost = jnp.sum(safe.point_weight * err_p**2) + jnp.sum(safe.axis_weight * err_a**2)
+    cost = cost + WEIGHT**2 * jnp.sum(violation**2)
     cost = jnp.where(jnp.isfinite(cost), cost, jnp.inf)
     return Attempt(problem.pose(x, init), err_p, err_a, ok, cost, steps)
 

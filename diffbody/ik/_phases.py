@@ -53,43 +53,59 @@ def trunk_segments(body: Body) -> set[int]:
 
 def phase_layouts(
     body: Body,
-    ts: TargetSet,
+    phase_targets: Sequence[TargetSet],
     *,
     spine: bool,
     free_root: bool,
     segments: Sequence[str] | None,
+    stand: bool = False,
 ) -> list[Layout]:
     """The layouts of the phases: the limbs alone, then everything (one layout when the two
-    coincide or the limbs have no unknown on a target's chain). Cached per body structure
-    and limits (host work of milliseconds, on every call otherwise)."""
+    coincide or the limbs have no unknown on a target's chain). `phase_targets`: the
+    targets of the limbs' phase and of the trunk's (their constraints decide what is read);
+    `stand`: the trunk's phase stands on its feet (the root's placement and the legs free).
+    Cached per body structure and limits (host work of milliseconds, on every call
+    otherwise)."""
     ranges = (body.swing_lo, body.swing_hi, body.twist_lo, body.twist_hi)
+    args = (body, tuple(phase_targets), spine, free_root, segments, stand)
     if is_traced(ranges):
-        return _phase_layouts(body, ts, spine, free_root, segments)
+        return _phase_layouts(*args)
     key = (
         jax.tree.structure(body),
         tuple(np.asarray(a).tobytes() for a in ranges),
-        ts.point_index,
-        ts.axis_segment,
+        tuple((ts.point_index, ts.axis_segment, _reads(ts)) for ts in phase_targets),
         spine,
         free_root,
         None if segments is None else tuple(segments),
+        stand,
     )
     if key not in _LAYOUTS:
-        _LAYOUTS[key] = _phase_layouts(body, ts, spine, free_root, segments)
+        _LAYOUTS[key] = _phase_layouts(*args)
     return _LAYOUTS[key]
 
 
 _LAYOUTS: dict = {}
 
 
-def _phase_layouts(body, ts, spine, free_root, segments) -> list[Layout]:
+def _reads(ts: TargetSet) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The segments a target set's constraints read, and its feet."""
+    c = ts.constraints
+    return ((), ()) if c is None else (c.segments, c.feet)
+
+
+def _phase_layouts(body, phase_targets, spine, free_root, segments, stand) -> list[Layout]:
     """`phase_layouts`, uncached."""
-    points, axes = ts.point_index, ts.axis_segment
+    first, last = phase_targets[0], phase_targets[-1]
+    points, axes = first.point_index, first.axis_segment
     movable = set(range(body.n_segments))
     if segments is not None:
         movable = {body.segment_index(name) for name in segments}
-    full = make_layout(body, points, axes, movable, spine, free_root)
-    limbs = make_layout(body, points, axes, movable - trunk_segments(body), False, False)
+    read, feet = _reads(last)
+    full = make_layout(body, points, axes, movable, spine, free_root or stand, read, feet)
+    read, feet = _reads(first)
+    limbs = make_layout(
+        body, points, axes, movable - trunk_segments(body), False, False, read, feet
+    )
     if limbs.n_free == 0 or limbs.n_free == full.n_free:
         return [full]
     return [limbs, full]
@@ -235,13 +251,18 @@ def run_start(body, layout, init, ts, k: int, caps: list[int], tols, closed_form
     return eqx.tree_at(lambda a: a.steps, a, jnp.asarray(spent))
 
 
-def solve_host(body, layouts, init, ts, starts, max_steps, tols):
+def phase_targets_of(layouts: list[Layout], phase_targets: Sequence[TargetSet]) -> list[TargetSet]:
+    """The target set of each layout: a single phase is the trunk's (the last)."""
+    return list(phase_targets) if len(layouts) == len(phase_targets) else [phase_targets[-1]]
+
+
+def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols):
     """Phases, starts and rounds driven from the host: each runs only if needed. Returns
     the kept `Attempt`, the solver steps over all attempts, and per point target whether it
     lies beyond the reach bound of the last phase tried."""
     best, steps = None, 0
     start_pose = init
-    for phase, layout in enumerate(layouts):
+    for phase, (layout, ts) in enumerate(zip(layouts, phase_targets_of(layouts, phase_targets))):
         beyond, far, caps = phase_plan(body, layouts, phase, start_pose, ts.point_xyz, max_steps)
         if not far.any():
             caps = round_caps(max_steps)
@@ -256,13 +277,13 @@ def solve_host(body, layouts, init, ts, starts, max_steps, tols):
     return best, steps, beyond
 
 
-def solve_traced(body, layouts, init, ts, starts, max_steps, tols):
+def solve_traced(body, layouts, init, phase_targets, starts, max_steps, tols):
     """The same phases with every start side by side (for jax.grad / jit / vmap): each
     phase's solve runs without derivatives, and its answer is differentiated implicitly.
     Returns what `solve_host` does, with no target flagged as beyond."""
     best, steps = None, jnp.asarray(0)
     start_pose = init
-    for phase, layout in enumerate(layouts):
+    for phase, (layout, ts) in enumerate(zip(layouts, phase_targets_of(layouts, phase_targets))):
         b0, p0, t0, tp0, ta0 = no_gradient((body, start_pose, ts, *tols))
         x, s = _all_starts_jit(b0, layout, p0, t0, starts, max_steps, tp0, ta0, phase == 0)
         a = _assess_jit(body, layout, start_pose, ts, x, s, *tols, True)
@@ -274,5 +295,5 @@ def solve_traced(body, layouts, init, ts, starts, max_steps, tols):
             best = eqx.tree_at(lambda b: b.pose.spine_target, best, total, is_leaf=is_none)
         best = a if best is None else _select(better(a, best), a, best)
         start_pose = best.pose
-    beyond = np.zeros(ts.point_xyz.shape[0], bool)
+    beyond = np.zeros(phase_targets[0].point_xyz.shape[0], bool)
     return best, steps, beyond

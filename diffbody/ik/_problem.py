@@ -26,6 +26,7 @@ from .._limits import angles_from_swing, swing_vector
 from .._posture import angles_of_rotation
 from .._rotations import exp_rotvec, rot_z, safe_norm
 from .._spine import spine_angles
+from ._constraints import WEIGHT, constraint_rows
 from ._points import segments_of, socket_state, tree_points
 from ._targets import TargetSet
 from ._unknowns import Layout, into_cone, path_to_top, point_segment, squash, unsquash
@@ -115,13 +116,15 @@ class Problem(eqx.Module):
         return links, tau
 
     # --- effectors and residuals ---------------------------------------------------------
-    def effectors(self, x: Array, targets: TargetSet) -> tuple[Array, Array]:
-        """World positions of the point effectors (n_p, 3) and the world directions of the
-        axis targets' axes (n_a, 3): one call of the point kernel (`tree_points`), the
-        center of gravity as the mass-weighted mean of the centroids, an axis as the
-        difference of a point at its local direction (the segment's whole twist) and the
-        segment's proximal joint."""
+    def placed(self, x: Array, targets: TargetSet) -> tuple[Array, Array, Array, Array | None]:
+        """World positions of the point effectors (n_p, 3), the world directions of the
+        axis targets' axes (n_a, 3), and what the constraints read: the centres of their
+        spheres (k, 3) and the centre of gravity (3,) (None without balance). One call of
+        the point kernel (`tree_points`): the center of gravity as the mass-weighted mean
+        of the centroids, an axis as the difference of a point at its local direction (the
+        segment's whole twist) and the segment's proximal joint."""
         lay, b = self.layout, self.body
+        c = targets.constraints
         slots, offsets, heights = [], [], []
         cog = b.n_joints + len(b.feature_names)
         for index, slot in zip(lay.points, lay.point_slot):
@@ -134,44 +137,73 @@ class Problem(eqx.Module):
         slots += list(lay.axis_slot) * 2
         offsets += [targets.axis_local, jnp.zeros((n_a, 3), x.dtype)]
         heights += [b.lengths[axis_seg], jnp.zeros(n_a, x.dtype)]
+        n_sph = 0 if c is None else len(c.spheres)
+        if n_sph:
+            sph = np.asarray(c.spheres, int)
+            seg = np.asarray(b.sphere_segment, int)[sph]
+            slots += [lay.read_slot[s] for s in seg]
+            offsets.append(b.sphere_origins[sph])
+            heights.append(b.sphere_origins[sph, 2])
+        balance = c is not None and c.balance
+        if balance:
+            slots += _whole_tree_slots(self)
+            offsets.append(b.centroids)
+            heights.append(b.centroids[:, 2])
         if not slots:
-            return jnp.zeros((0, 3), x.dtype), jnp.zeros((0, 3), x.dtype)
+            empty = jnp.zeros((0, 3), x.dtype)
+            return empty, empty, empty, None
         offsets = jnp.concatenate([jnp.asarray(o, x.dtype).reshape(-1, 3) for o in offsets])
         heights = jnp.concatenate([jnp.asarray(h, x.dtype).reshape(-1) for h in heights])
         q = tree_points(tuple(slots), self, b.lengths, offsets, heights, x)
         points, at = [], 0
         for index in lay.points:
             if index == cog:
-                n = b.n_segments
-                total = jnp.sum(b.masses)
-                weight = b.masses / jnp.where(total > 0, total, 1.0)
-                points.append(weight @ q[at : at + n])
-                at += n
+                points.append(_mass_mean(b, q[at : at + b.n_segments]))
+                at += b.n_segments
             else:
                 points.append(q[at])
                 at += 1
         p = jnp.stack(points) if points else jnp.zeros((0, 3), x.dtype)
-        axes = q[at : at + n_a] - q[at + n_a :]
-        return p, axes
+        axes = q[at : at + n_a] - q[at + n_a : at + 2 * n_a]
+        at += 2 * n_a
+        centers = q[at : at + n_sph]
+        at += n_sph
+        return p, axes, centers, _mass_mean(b, q[at:]) if balance else None
+
+    def effectors(self, x: Array, targets: TargetSet) -> tuple[Array, Array]:
+        """The point effectors (n_p, 3) and axis directions (n_a, 3) (`placed`)."""
+        return self.placed(x, targets)[:2]
+
+    def constraint_rows(self, x: Array, targets: TargetSet) -> tuple[Array, Array, Array, Array]:
+        """The effectors, the constraints' unweighted rows and each kind's violation (m)."""
+        p, axes, centers, cog = self.placed(x, targets)
+        c = targets.constraints
+        if c is None:
+            return p, axes, jnp.zeros(0, x.dtype), jnp.zeros(0, x.dtype)
+        radii = self.body.sphere_radii[np.asarray(c.spheres, int)]
+        rows, worst = constraint_rows(c, centers, radii, cog)
+        return p, axes, rows, worst
 
     def residuals(self, x: Array, targets: TargetSet) -> Array:
-        """Weighted residuals: points (m), axes (chord lengths ~ rad), the pull toward the
-        start; one flat vector."""
-        p, axes = self.effectors(x, targets)
+        """Weighted residuals: points (m), axes (chord lengths ~ rad), the constraints (m,
+        `WEIGHT` times), the pull toward the start; one flat vector."""
+        p, axes, rows, _ = self.constraint_rows(x, targets)
         return jnp.concatenate(
             [
                 (targets.point_weight[:, None] * (p - targets.point_xyz)).ravel(),
                 (targets.axis_weight[:, None] * (axes - targets.axis_direction)).ravel(),
+                WEIGHT * rows,
                 self.pull * (x - self.x0),
             ]
         )
 
-    def errors(self, x: Array, targets: TargetSet) -> tuple[Array, Array]:
-        """Distances of the point targets (m) and angles of the axis targets (rad); finite
-        for any finite target (no overflow of squares in float32)."""
-        p, axes = self.effectors(x, targets)
+    def errors(self, x: Array, targets: TargetSet) -> tuple[Array, Array, Array]:
+        """Distances of the point targets (m), angles of the axis targets (rad) and each
+        constraint kind's violation (m); finite for any finite target (no overflow of
+        squares in float32)."""
+        p, axes, _, worst = self.constraint_rows(x, targets)
         cos = jnp.clip(jnp.sum(axes * targets.axis_direction, axis=-1), -1.0, 1.0)
-        return scaled_distance(p, targets.point_xyz), jnp.arccos(cos)
+        return scaled_distance(p, targets.point_xyz), jnp.arccos(cos), worst
 
     # --- the public pose ----------------------------------------------------------------
     def pose(self, x: Array, init: Pose) -> Pose:
@@ -218,6 +250,20 @@ def _effector_point(problem: Problem, index: int, slot: int) -> tuple[list[int],
     origin = b.sphere_origins[sph]
     offset = origin + b.sphere_radii[sph] * b.feature_directions[index - n_j]
     return [slot], offset[None], origin[2:3]
+
+
+def _mass_mean(body: Body, centroids: Array) -> Array:
+    """The center of gravity of the segments' world centroids (n_seg, 3)."""
+    total = jnp.sum(body.masses)
+    return (body.masses / jnp.where(total > 0, total, 1.0)) @ centroids
+
+
+def _whole_tree_slots(problem: Problem) -> list[int]:
+    """Every segment's slot: in the chain (the full tree), or read by the constraints."""
+    lay = problem.layout
+    if lay.full:
+        return [lay.chain.position(s) for s in range(problem.body.n_segments)]
+    return list(lay.read_slot)
 
 
 def scaled_distance(a: Array, b: Array) -> Array:

@@ -18,7 +18,9 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._body import Body, Pose
 from ._attempt import Attempt
-from ._phases import is_traced, phase_layouts, solve_host, solve_traced
+from ._constraints import is_constraint, pose_violations, resolve_constraints
+from ._constraints import standing as standing_targets
+from ._phases import is_none, is_traced, phase_layouts, solve_host, solve_traced
 from ._post_projection import finish, needs_projection, twists_to_keep
 from ._targets import Target, TargetSet, flatten_targets, resolve_targets
 
@@ -30,6 +32,8 @@ class ReachStatus(enum.IntEnum):
     NOT_REACHED = 1  # a target missed although no bound rules it out: the closest reach found
     UNREACHABLE = 2  # a target lies beyond the reach of its chain: the closest reach
     INVALID_TARGET = 3  # a target is not finite: it took no part (the others were solved)
+    CONSTRAINED = 4  # a target missed while every constraint holds: they stop the reach
+    CONSTRAINT_VIOLATED = 5  # a constraint (contact, feet, balance) could not be kept
 
     def describe(self) -> str:
         """What the status means, in words."""
@@ -41,6 +45,10 @@ _DESCRIPTIONS = {
     ReachStatus.NOT_REACHED: "not reached: no start found a posture within the tolerance",
     ReachStatus.UNREACHABLE: "not reached: target outside the reach envelope",
     ReachStatus.INVALID_TARGET: "invalid target (not finite): ignored",
+    ReachStatus.CONSTRAINED: (
+        "not reached: keeping balance, the feet planted or clear of contact stops the reach"
+    ),
+    ReachStatus.CONSTRAINT_VIOLATED: "a constraint (contact, feet, balance) is not kept",
 }
 
 
@@ -60,6 +68,10 @@ class ReachResult(eqx.Module):
     beyond: Bool[_Arr, "*batch n_targets"]  # farther than the sum of its chain's lengths
     status: Int[_Arr, "*batch"]  # a ReachStatus
     steps: Int[_Arr, "*batch"]  # solver steps over every attempt
+    # Each constraint kind's violation (m), in `constraint_names` order ("no_contact",
+    # "on_floor", "balance"; standing's included): how far the answer breaks it.
+    violation: Float[_Arr, "*batch n_constraints"]
+    constraint_names: tuple[str, ...] = eqx.field(static=True, default=())
 
 
 def solve_reach(
@@ -69,6 +81,7 @@ def solve_reach(
     init: Pose | None = None,
     spine: bool = True,
     free_root: bool = False,
+    standing: bool = True,
     segments: Sequence[str] | None = None,
     starts: int = 8,
     standard_orientation: bool = True,
@@ -85,7 +98,14 @@ def solve_reach(
     hold exactly by construction (bounded maps, `_unknowns`).
 
     The limbs move first; the trunk (spine, root) joins only for what they cannot reach
-    (`_phases`). The limbs' phase starts from the closed-form limb start (the elbow or knee
+    (`_phases`). When the trunk joins, the body stands (`standing`, the default, unless
+    `free_root` or `segments` is given): the pelvis's placement and the legs join the
+    spine, the feet stay planted where `init` has them, the centre of gravity stays 2 cm
+    inside their support polygon and no sphere enters the floor (`Target.on_floor`,
+    `.balance`, `.no_contact`), so that a far reach bends the hips and moves the pelvis back
+    as a person does. `standing=False` holds the pelvis fixed in space (the spine alone
+    bends). Constraints among `targets` (`Target.no_contact`, `.on_floor`, `.balance`) hold
+    in every phase. The limbs' phase starts from the closed-form limb start (the elbow or knee
     from the distance, the swivel from `init`; `_limb_start`), the trunk's from the limbs'
     closest reach; each phase then tries up to `starts - 1` further starts, each in rounds
     of a few steps, until every target is reached; a target out of a phase's reach spends
@@ -96,17 +116,20 @@ def solve_reach(
 
     Args:
         body: the body.
-        targets: `Target.position(...)`, `Target.axis_direction(...)`, `Target.frame(...)`.
+        targets: `Target.position(...)`, `Target.axis_direction(...)`, `Target.frame(...)`,
+            and constraints `Target.no_contact(...)`, `.on_floor(...)`, `.balance(...)`.
         init: the starting pose (default: the standard position).
         spine, free_root, segments: which unknowns exist (above).
+        standing: the trunk's phase stands on the feet (above).
         starts: the most starts per phase (>= 1).
         standard_orientation: apply the post-projection.
         max_steps: solver steps per start (>= 1), in rounds of `_attempt.ROUND_STEPS`.
         tol_position, tol_angle: what counts as reached (m, rad; > 0).
 
     Returns:
-        `ReachResult`: the pose; per target `reached`, `residuals`, `valid`, `beyond`; the
-        `status` (a `ReachStatus`) and the solver `steps` over all attempts.
+        `ReachResult`: the pose; per position or axis target `reached`, `residuals`,
+        `valid`, `beyond`; per constraint kind its `violation`; the `status` (a
+        `ReachStatus`) and the solver `steps` over all attempts.
 
     Raises:
         KeyError: an unknown effector or segment name (the message lists the valid ones).
@@ -121,26 +144,52 @@ def solve_reach(
             continue
         if not np.all(np.isfinite(t.value)):
             raise ValueError(f"solve_reach: target {t.name!r} has a non-finite value {t.value}")
-    ts, order = resolve_targets(body, flat)
+    goals = [t for t in flat if not is_constraint(t)]
+    if not goals:
+        raise ValueError("solve_reach: give a position or axis target besides the constraints")
+    ts, order = resolve_targets(body, goals)
     init = _rest_pose_jit(body) if init is None else init
-    layouts = phase_layouts(body, ts, spine=spine, free_root=free_root, segments=segments)
+    stand = standing and not free_root and segments is None
+    phase_targets = constrained_targets(body, ts, flat, init, stand)
+    layouts = phase_layouts(
+        body, phase_targets, spine=spine, free_root=free_root, segments=segments, stand=stand
+    )
     dtype = jnp.result_type(float)
     tols = (jnp.asarray(tol_position, dtype), jnp.asarray(tol_angle, dtype))
-    run = solve_traced if is_traced(body, init, ts) else solve_host
-    best, steps, beyond = run(body, layouts, init, ts, int(starts), int(max_steps), tols)
+    run = solve_traced if is_traced(body, init, phase_targets) else solve_host
+    best, steps, beyond = run(body, layouts, init, phase_targets, int(starts), int(max_steps), tols)
     final = layouts[-1]
     keep = (
         twists_to_keep(body, final)
         if (standard_orientation and needs_projection(body, final))
         else None
     )
+    ts = phase_targets[-1]
     return _conclude_jit(body, keep, best, ts, tuple(order), beyond, steps, tols)
+
+
+def constrained_targets(
+    body: Body, ts: TargetSet, flat: Sequence[Target], init: Pose, stand: bool
+) -> list[TargetSet]:
+    """The target sets of the limbs' phase and the trunk's: the position and axis targets
+    with the given constraints, the trunk's with standing's added when `stand`."""
+    given = [t for t in flat if is_constraint(t)]
+    extra = standing_targets(body, init) if stand else []
+    limbs = eqx.tree_at(
+        lambda t: t.constraints, ts, resolve_constraints(body, given, init), is_leaf=is_none
+    )
+    if not extra:
+        return [limbs, limbs]
+    trunk = eqx.tree_at(
+        lambda t: t.constraints, ts, resolve_constraints(body, given + extra, init), is_leaf=is_none
+    )
+    return [limbs, trunk]
 
 
 _rest_pose_jit = eqx.filter_jit(lambda body: body.rest_pose())
 
 
-def _result(pose, best: Attempt, ts: TargetSet, order, beyond, steps, tols) -> ReachResult:
+def _result(body, pose, best: Attempt, ts: TargetSet, order, beyond, steps, tols) -> ReachResult:
     """The verdicts of the kept attempt, back in the order the targets were given (`order`:
     their places in `ts`, points first)."""
     valid = jnp.concatenate(
@@ -152,7 +201,9 @@ def _result(pose, best: Attempt, ts: TargetSet, order, beyond, steps, tols) -> R
     tol_position, tol_angle = tols
     reached = valid & jnp.concatenate([best.err_p <= tol_position, best.err_a <= tol_angle])
     back = np.argsort(order)
-    status = reach_status(reached, valid, beyond)
+    c = ts.constraints
+    violation = pose_violations(body, pose, c).astype(residuals.dtype)
+    status = reach_status(reached, valid, beyond, violation <= tol_position)
     return ReachResult(
         pose=pose,
         reached=reached[back],
@@ -161,28 +212,38 @@ def _result(pose, best: Attempt, ts: TargetSet, order, beyond, steps, tols) -> R
         beyond=beyond[back],
         status=status,
         steps=jnp.asarray(steps),
+        violation=violation,
+        constraint_names=() if c is None else c.kinds,
     )
 
 
 def _conclude(body, keep, best: Attempt, ts, order, beyond, steps, tols) -> ReachResult:
     """The post-projection (when `keep` is not None) and the result, in one compiled call."""
-    return _result(finish(body, best.pose, keep), best, ts, order, beyond, steps, tols)
+    return _result(body, finish(body, best.pose, keep), best, ts, order, beyond, steps, tols)
 
 
 _conclude_jit = eqx.filter_jit(_conclude)
 
 
-def reach_status(reached: Array, valid: Array, beyond: Array) -> Array:
-    """The `ReachStatus` (int) of one problem from its per-target verdicts."""
+def reach_status(reached: Array, valid: Array, beyond: Array, kept: Array | None = None) -> Array:
+    """The `ReachStatus` (int) of one problem from its per-target verdicts and whether each
+    constraint is kept (`kept`, per kind; None or empty: no constraint)."""
     ok = jnp.all(reached | ~valid)
-    return jnp.where(
-        jnp.all(reached),
-        ReachStatus.SUCCESS,
+    has = kept is not None and kept.shape[-1] > 0
+    held = jnp.all(kept) if has else jnp.asarray(True)
+    missed = jnp.where(
+        jnp.any(beyond & ~reached),
+        ReachStatus.UNREACHABLE,
         jnp.where(
-            jnp.any(beyond & ~reached),
-            ReachStatus.UNREACHABLE,
-            jnp.where(ok, ReachStatus.INVALID_TARGET, ReachStatus.NOT_REACHED),
+            ok,
+            ReachStatus.INVALID_TARGET,
+            ReachStatus.CONSTRAINED if has else ReachStatus.NOT_REACHED,
         ),
+    )
+    return jnp.where(
+        ~held,
+        ReachStatus.CONSTRAINT_VIOLATED,
+        jnp.where(jnp.all(reached), ReachStatus.SUCCESS, missed),
     ).astype(int)
 
 

@@ -12,6 +12,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._body import Body
+from ..contact._environment import Environment
+from ._constraints import Constraints
 
 COG = "center_of_gravity"
 
@@ -40,11 +42,17 @@ class Target:
     """One reach target; build it with the class methods. A host-side description: names
     are resolved into indices by `solve_reach`."""
 
-    kind: str  # "point" or "axis"
-    name: str  # "left_hand.palm", "left_wrist", "center_of_gravity", or a segment for axes
+    kind: str  # "point", "axis", or a constraint: "no_contact", "on_floor", "balance"
+    name: str  # "left_hand.palm", "left_wrist", "center_of_gravity", a segment for axes
     value: np.ndarray | Array  # (3,) position (m) or unit direction; traced under jax.grad
     axis: np.ndarray | None = None  # (3,) unit axis in the segment's twisted frame, for "axis"
     weight: float = 1.0
+    # Constraints (docs/design.md, section 10):
+    segments: tuple[str, ...] | None = None  # the segments it holds (None: all)
+    environment: Environment | None = None  # no_contact: shapes not to enter
+    margin: float = 0.0  # m, no_contact: clearance; balance: inside the polygon's edge
+    height: float = 0.0  # m, on_floor: the floor z = height
+    self_contact: bool = True  # no_contact: the segments keep out of each other too
 
     @classmethod
     def position(
@@ -78,6 +86,66 @@ class Target:
             for k, e in ((0, [1, 0, 0]), (2, [0, 0, 1]))
         ]
 
+    @classmethod
+    def no_contact(
+        cls,
+        segments: Sequence[str] | None = None,
+        environment: Environment | None = None,
+        margin: float = 0.0,
+        self_contact: bool = True,
+    ) -> "Target":
+        """A constraint: these segments (all when None) enter no other segment of the body
+        (unless `self_contact` is False) and no shape of `environment`, keeping `margin`
+        (m) clear. A pair's rest overlap counts as its zero (`diffbody.contact`)."""
+        _check_margin("no_contact", margin)
+        if environment is not None and not isinstance(environment, Environment):
+            raise TypeError("Target.no_contact: environment must be a diffbody.Environment")
+        names = None if segments is None else _names("no_contact", segments)
+        return cls(
+            "no_contact",
+            "no_contact",
+            np.zeros(3),
+            None,
+            1.0,
+            names,
+            environment,
+            float(margin),
+            0.0,
+            bool(self_contact),
+        )
+
+    @classmethod
+    def on_floor(
+        cls, segments: Sequence[str] = ("left_foot", "right_foot"), height: float = 0.0
+    ) -> "Target":
+        """A constraint: these segments' sole spheres (the lowest in the standard
+        position) touch the floor z = `height` (m) and do not slide from where the start
+        pose has them."""
+        if not np.isfinite(float(height)):
+            raise ValueError(f"Target.on_floor: height must be finite, got {height!r}")
+        names = _names("on_floor", segments)
+        return cls("on_floor", "on_floor", np.zeros(3), None, 1.0, names, None, 0.0, float(height))
+
+    @classmethod
+    def balance(cls, margin: float = 0.02) -> "Target":
+        """A constraint: the centre of gravity's ground projection stays inside the support
+        polygon of the sole spheres of the `on_floor` targets, `margin` (m) inside its
+        edges."""
+        _check_margin("balance", margin)
+        return cls("balance", "balance", np.zeros(3), None, 1.0, None, None, float(margin))
+
+
+def _check_margin(where: str, margin) -> None:
+    if not (np.isfinite(float(margin)) and float(margin) >= 0):
+        raise ValueError(f"Target.{where}: margin must be a finite number >= 0 (m), got {margin!r}")
+
+
+def _names(where: str, segments) -> tuple[str, ...]:
+    names = (segments,) if isinstance(segments, str) else tuple(segments)
+    if not names or not all(isinstance(n, str) for n in names):
+        raise ValueError(f"Target.{where}: segments must be segment names, got {segments!r}")
+    return names
+
 
 class TargetSet(eqx.Module):
     """Targets as arrays (one problem; batch them with a leading axis)."""
@@ -90,6 +158,7 @@ class TargetSet(eqx.Module):
     axis_local: Float[Array, "n_a 3"]  # unit, segment's twisted frame
     axis_direction: Float[Array, "n_a 3"]  # unit, world
     axis_weight: Float[Array, " n_a"]
+    constraints: Constraints | None = None
 
 
 def point_index(body: Body, name: str) -> int:

@@ -66,6 +66,7 @@ class Layout:
     points: tuple[int, ...]
     point_slot: tuple[int, ...]
     axis_slot: tuple[int, ...]
+    read_slot: tuple[int, ...] = ()  # the slot of every segment (-1: not read), constraints
 
     @property
     def sizes(self) -> tuple[int, int, int, int, int]:
@@ -131,14 +132,22 @@ def make_layout(
     movable: Iterable[int],
     spine: bool,
     root: bool,
+    read: Iterable[int] = (),
+    feet: Iterable[int] = (),
 ) -> Layout:
     """The layout for effectors `points` (into [joints, features, center of gravity]) and
     axis segments `axes`, with `movable` segments free within their ranges, the spine as its
-    target when `spine`, the whole body's placement when `root`."""
+    target when `spine`, the whole body's placement when `root`. Constraints add segments
+    whose points are `read` (walked when something above them moves, else read from the
+    start) and `feet` on the floor, whose paths are unknowns when the root is free (the
+    legs then carry the body: otherwise they are only read)."""
     points, axes = tuple(int(i) for i in points), tuple(int(i) for i in axes)
     full = moves_everything(body, points)
-    on_path = segments_on_path(body, points, axes)
-    eff = [point_segment(body, i) for i in points] + list(axes)
+    feet = tuple(int(i) for i in feet)
+    legs = feet if root else ()
+    on_path = segments_on_path(body, points, tuple(axes) + legs)
+    read = sorted(set(int(i) for i in read) | set(feet))
+    eff = [point_segment(body, i) for i in points] + list(axes) + read
     spine_segs = set(body.spine.segment_names) if (spine and body.spine is not None) else set()
     names = body.segment_names
     lo, hi = np.asarray(body.swing_lo), np.asarray(body.swing_hi)
@@ -178,6 +187,9 @@ def make_layout(
         points=points,
         point_slot=tuple(slot(point_segment(body, i)) for i in points),
         axis_slot=tuple(slot(s) for s in axes),
+        read_slot=tuple(slot(s) if s in read else -1 for s in range(body.n_segments))
+        if read
+        else (),
     )
 
 

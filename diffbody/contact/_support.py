@@ -1,0 +1,57 @@
+"""Standing: the spheres a foot stands on, the support polygon they span on the floor, and
+how far the centre of gravity's ground projection lies inside it (docs/design.md, section 10).
+"""
+
+from collections.abc import Sequence
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._body import Body, rest_geometry
+
+# A foot's spheres whose lowest point lies within this of the foot's lowest in the standard
+# position (feet flat) are the ones it stands on: the heel's and the ball's.
+SOLE = 0.005  # m
+
+
+def sole_spheres(body: Body, segments: Sequence[str]) -> np.ndarray:
+    """Indices of the spheres the segments stand on in the standard position (feet flat):
+    per segment, those whose bottom lies within `SOLE` of its lowest."""
+    _, centers = rest_geometry(body)
+    r = np.asarray(body.sphere_radii, float)
+    out = []
+    for name in segments:
+        k = body.segment_spheres(name)
+        if not k.size:
+            raise ValueError(f"on_floor: segment {name!r} has no spheres to stand on")
+        bottom = centers[k, 2] - r[k]
+        out += k[bottom <= bottom.min() + SOLE].tolist()
+    return np.asarray(out, int)
+
+
+def support_edges(xy: Float[Array, "k 2"]) -> tuple[Array, Array, Array]:
+    """The support polygon of contact points xy (k >= 1) as half-planes n . p <= h over
+    every ordered pair of points (k^2 candidates): unit outward normals (k^2, 2), offsets
+    (k^2,) and which are edges of the convex hull (k^2,). An edge is a pair with every point
+    on or inside its line; traceable (no host hull). A single point or a line's hull is
+    degenerate: its edges pass through it, and the inside distance is <= 0."""
+    k = xy.shape[0]
+    a = jnp.repeat(xy, k, axis=0)
+    b = jnp.tile(xy, (k, 1))
+    t = b - a
+    n = jnp.stack([t[:, 1], -t[:, 0]], axis=-1)  # right of a -> b: outward for a CCW hull
+    length = jnp.sqrt(jnp.sum(n * n, -1))
+    ok = length > 1e-9
+    n = n / jnp.where(ok, length, 1.0)[:, None]
+    h = jnp.sum(n * a, -1)
+    side = xy @ n.T - h[None]  # (k, k^2)
+    edge = ok & jnp.all(side <= 1e-9, axis=0)
+    return n, h, edge
+
+
+def inside_distance(p: Float[Array, "2"], normals, offsets, edge) -> Array:
+    """How far p lies inside the polygon (m): the smallest distance to an edge's line,
+    negative outside."""
+    d = offsets - normals @ p
+    return jnp.min(jnp.where(edge, d, jnp.inf))

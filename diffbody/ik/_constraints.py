@@ -1,0 +1,227 @@
+"""Constraints of a reach (docs/design.md, section 10): no contact, feet on the floor,
+balance. Host-side `Target`s are merged into one `Constraints` pytree of index arrays; its
+rows are residuals on the same point kernel as the targets (`Problem.effectors` places the
+spheres and centroids they read in the one walk), weighted `WEIGHT` times a target's.
+
+- no contact: one row per checked pair of segments (`diffbody.contact`, closest spheres
+  less their rest overlap) and per segment and environment shape: relu(margin - gap);
+- on the floor: the sole spheres' centres stay at their planted place (3 rows each);
+- balance: the centre of gravity's ground projection at least `margin` inside every edge
+  of the support polygon of the sole spheres: relu(margin - inside) per candidate edge.
+"""
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from .._body import Body, Pose
+from .._kinematics import forward
+from ..contact._distances import closest_pair_gaps, environment_gaps
+from ..contact._environment import Environment
+from ..contact._pairs import sphere_pairs
+from ..contact._support import sole_spheres, support_edges
+
+# A constraint row weighs this many times a target's: a target missed by 10 cm leaves a
+# constraint violated by about 0.1 mm (the penalty's balance, 10 cm / WEIGHT^2).
+WEIGHT = 30.0
+KINDS = ("no_contact", "on_floor", "balance")
+FEET = ("left_foot", "right_foot")
+
+
+class Constraints(eqx.Module):
+    """The merged constraints of one problem. `spheres`: the spheres whose centres the
+    rows read (static); pair and sole indices point into it."""
+
+    kinds: tuple[str, ...] = eqx.field(static=True)  # which of KINDS are present
+    spheres: tuple[int, ...] = eqx.field(static=True)
+    segments: tuple[int, ...] = eqx.field(static=True)  # segments read (not moved)
+    feet: tuple[int, ...] = eqx.field(static=True)  # segments standing on the floor
+    n_pair_groups: int = eqx.field(static=True)
+    pair_a: Int[Array, " P"]
+    pair_b: Int[Array, " P"]
+    pair_group: Int[Array, " P"]
+    allowance: Float[Array, " P"]
+    pair_margin: Float[Array, ""]
+    env: Environment
+    env_sphere: Int[Array, " K"]  # into `spheres`
+    env_group: Int[Array, " K"]  # row of the sphere's segment
+    n_env_groups: int = eqx.field(static=True)
+    env_margin: Float[Array, ""]
+    sole: Int[Array, " F"]  # into `spheres`
+    sole_center: Float[Array, "F 3"]  # m, where each sole sphere's centre stays
+    edge_normal: Float[Array, "E 2"]
+    edge_offset: Float[Array, " E"]
+    edge: Array  # (E,) bool
+    balance_margin: Float[Array, ""]
+
+    @property
+    def balance(self) -> bool:
+        return "balance" in self.kinds
+
+
+def is_constraint(t) -> bool:
+    return t.kind in KINDS
+
+
+def _segments(body: Body, names) -> list[int]:
+    return list(range(body.n_segments)) if names is None else [body.segment_index(n) for n in names]
+
+
+def resolve_constraints(body: Body, targets: Sequence, init: Pose) -> Constraints | None:
+    """The constraint targets (`Target.no_contact`, `.on_floor`, `.balance`) merged, their
+    floor places taken from `init` (traceable in `init`). None when there are none."""
+    targets = [t for t in targets if is_constraint(t)]
+    if not targets:
+        return None
+    dtype = jnp.result_type(float)
+    kinds = tuple(k for k in KINDS if any(t.kind == k for t in targets))
+    contact = [t for t in targets if t.kind == "no_contact"]
+    floors = [t for t in targets if t.kind == "on_floor"]
+    balance = [t for t in targets if t.kind == "balance"]
+    if balance and not floors:
+        raise ValueError(
+            "Target.balance: the support polygon needs the feet on the floor; add "
+            "Target.on_floor() (or solve_reach's standing=True adds both)"
+        )
+    # Self contact: the union of every target's pairs.
+    selfish = [t for t in contact if t.self_contact]
+    named: set[int] = set()
+    everything = any(t.segments is None for t in selfish)
+    for t in selfish:
+        named |= set(_segments(body, t.segments))
+    self_pairs = (
+        sphere_pairs(body, None if everything else [body.segment_names[s] for s in sorted(named)])
+        if selfish
+        else None
+    )
+    env_targets = [t for t in contact if t.environment is not None and t.environment.n_shapes]
+    env = _merged([t.environment for t in env_targets])
+    env_segs = sorted({s for t in env_targets for s in _segments(body, t.segments)})
+    seg_of = np.asarray(body.sphere_segment, int)
+    env_spheres = [k for k in range(body.n_spheres) if seg_of[k] in set(env_segs)]
+    feet = sorted({body.segment_index(n) for t in floors for n in t.segments})
+    soles = sole_spheres(body, [body.segment_names[s] for s in feet]) if feet else np.zeros(0, int)
+    used = set(env_spheres) | set(soles.tolist())
+    if self_pairs is not None:
+        used |= set(self_pairs.i.tolist()) | set(self_pairs.j.tolist())
+    spheres = tuple(sorted(used))
+    where = {k: n for n, k in enumerate(spheres)}
+    remap = np.vectorize(where.__getitem__, otypes=[int])
+    empty = np.zeros(0, int)
+    # Where the soles stay: their centres in init, lowered or raised onto z = height.
+    heights = {body.segment_index(n): t.height for t in floors for n in t.segments}
+    k = forward(body, init)
+    sole_xyz = k.sphere_centers[soles] if len(soles) else jnp.zeros((0, 3), dtype)
+    r = body.sphere_radii[soles]
+    height = jnp.asarray([heights[seg_of[s]] for s in soles], dtype)
+    sole_center = sole_xyz.at[:, 2].set(height + r) if len(soles) else sole_xyz
+    normals, offsets, edge = (
+        support_edges(sole_center[:, :2])
+        if len(soles)
+        else (
+            jnp.zeros((0, 2), dtype),
+            jnp.zeros(0, dtype),
+            jnp.zeros(0, bool),
+        )
+    )
+    groups = np.asarray([env_segs.index(seg_of[s]) for s in env_spheres], int)
+    return Constraints(
+        kinds=kinds,
+        spheres=spheres,
+        segments=tuple(
+            sorted(
+                {seg_of[s] for s in spheres} | (set(range(body.n_segments)) if balance else set())
+            )
+        ),
+        feet=tuple(feet),
+        n_pair_groups=0 if self_pairs is None else len(self_pairs.segments),
+        pair_a=jnp.asarray(empty if self_pairs is None else remap(self_pairs.i)),
+        pair_b=jnp.asarray(empty if self_pairs is None else remap(self_pairs.j)),
+        pair_group=jnp.asarray(empty if self_pairs is None else self_pairs.segment_pair),
+        allowance=jnp.asarray(np.zeros(0) if self_pairs is None else self_pairs.allowance, dtype),
+        pair_margin=jnp.asarray(max([t.margin for t in selfish], default=0.0), dtype),
+        env=env,
+        env_sphere=jnp.asarray(remap(env_spheres) if env_spheres else empty),
+        env_group=jnp.asarray(groups),
+        n_env_groups=len(env_segs),
+        env_margin=jnp.asarray(max([t.margin for t in env_targets], default=0.0), dtype),
+        sole=jnp.asarray(remap(soles) if len(soles) else empty),
+        sole_center=jnp.asarray(sole_center, dtype),
+        edge_normal=normals,
+        edge_offset=offsets,
+        edge=edge,
+        balance_margin=jnp.asarray(max([t.margin for t in balance], default=0.0), dtype),
+    )
+
+
+def _merged(envs: list[Environment]) -> Environment:
+    if not envs:
+        return Environment.of()
+    return jax.tree.map(lambda *a: jnp.concatenate(a), *envs)
+
+
+def constraint_rows(
+    c: Constraints, centers: Array, radii: Array, cog: Array | None
+) -> tuple[Array, Array]:
+    """Unweighted residual rows of the constraints (m) and each kind's violation (m, in
+    `c.kinds` order: the largest row of the kind), from the centres of `c.spheres`
+    (k, 3), their radii and the centre of gravity (3,) (None without balance)."""
+    rows, worst = [], []
+    if "no_contact" in c.kinds:
+        parts = []
+        if c.n_pair_groups:
+            gap, _ = closest_pair_gaps(
+                centers, radii, c.pair_a, c.pair_b, c.allowance, c.pair_group, c.n_pair_groups
+            )
+            parts.append(jax.nn.relu(c.pair_margin - gap))
+        if c.n_env_groups:
+            gap, _ = environment_gaps(
+                centers[c.env_sphere], radii[c.env_sphere], c.env, c.env_group, c.n_env_groups
+            )
+            parts.append(jax.nn.relu(c.env_margin - gap).ravel())
+        r = jnp.concatenate(parts) if parts else jnp.zeros(0, centers.dtype)
+        rows.append(r)
+        worst.append(jnp.max(r, initial=0.0))
+    if "on_floor" in c.kinds:
+        d = centers[c.sole] - c.sole_center
+        rows.append(d.ravel())
+        worst.append(jnp.max(jnp.sqrt(jnp.sum(d * d, -1) + 1e-30), initial=0.0))
+    if "balance" in c.kinds:
+        inside = c.edge_offset - c.edge_normal @ cog[:2]
+        r = jnp.where(c.edge, jax.nn.relu(c.balance_margin - inside), 0.0)
+        rows.append(r)
+        worst.append(jnp.max(r, initial=0.0))
+    return jnp.concatenate(rows), jnp.stack(worst)
+
+
+def pose_violations(body: Body, pose: Pose, c: Constraints | None) -> Array:
+    """Each constraint kind's violation (m) in a pose, from `forward`: what the result
+    reports, whichever phase solved it."""
+    if c is None:
+        return jnp.zeros(0)
+    k = forward(body, pose)
+    idx = np.asarray(c.spheres, int)
+    return constraint_rows(c, k.sphere_centers[idx], k.sphere_radii[idx], k.center_of_gravity)[1]
+
+
+def standing(body: Body, init: Pose, height: float | None = None) -> list:
+    """The targets of a standing body: the feet planted where they are in `init` (on the
+    floor at the lowest of their sole spheres), the centre of gravity over them (2 cm
+    inside), the floor not entered. Empty for a body without both feet."""
+    from ._targets import Target  # the targets module builds on this one's names
+
+    if not all(n in body.segment_names for n in FEET):
+        return []
+    if height is None:
+        soles = sole_spheres(body, FEET)
+        k = forward(body, init)
+        height = float(jnp.min(k.sphere_centers[soles, 2] - k.sphere_radii[soles]))
+    return [
+        Target.on_floor(FEET, height=height),
+        Target.balance(),
+        Target.no_contact(environment=Environment.floor(height), self_contact=False),
+    ]
