@@ -17,7 +17,9 @@ SOLE = 0.005  # m
 
 def sole_spheres(body: Body, segments: Sequence[str]) -> np.ndarray:
     """Indices of the spheres the segments stand on in the standard position (feet flat):
-    per segment, those whose bottom lies within `SOLE` of its lowest."""
+    per segment, of those whose bottom lies within `SOLE` of its lowest, the corners of
+    their contact points' convex hull (the others lie inside the support polygon and add
+    nothing to it, nor to holding the foot in place)."""
     _, centers = rest_geometry(body)
     r = np.asarray(body.sphere_radii, float)
     out = []
@@ -26,8 +28,32 @@ def sole_spheres(body: Body, segments: Sequence[str]) -> np.ndarray:
         if not k.size:
             raise ValueError(f"on_floor: segment {name!r} has no spheres to stand on")
         bottom = centers[k, 2] - r[k]
-        out += k[bottom <= bottom.min() + SOLE].tolist()
+        sole = k[bottom <= bottom.min() + SOLE]
+        out += sole[_hull_corners(centers[sole, :2])].tolist()
     return np.asarray(out, int)
+
+
+def _hull_corners(xy: np.ndarray) -> np.ndarray:
+    """Indices of the corners of the convex hull of points xy (k, 2) (monotone chain),
+    all of them when there are fewer than three or they lie on a line."""
+    order = np.lexsort((xy[:, 1], xy[:, 0]))
+    if len(xy) < 3:
+        return order
+
+    def half(idx):
+        chain: list[int] = []
+        for i in idx:
+            while len(chain) >= 2:
+                a, b = xy[chain[-2]], xy[chain[-1]]
+                cross = (b[0] - a[0]) * (xy[i][1] - a[1]) - (b[1] - a[1]) * (xy[i][0] - a[0])
+                if cross > 1e-12:
+                    break
+                chain.pop()
+            chain.append(int(i))
+        return chain
+
+    corners = half(order)[:-1] + half(order[::-1])[:-1]
+    return np.asarray(sorted(set(corners)) if len(corners) >= 3 else order, int)
 
 
 def support_edges(xy: Float[Array, "k 2"]) -> tuple[Array, Array, Array]:

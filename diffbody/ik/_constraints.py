@@ -27,7 +27,7 @@ from ..contact._support import sole_spheres, support_edges
 
 # A constraint row weighs this many times a target's: a target missed by 10 cm leaves a
 # constraint violated by about 0.1 mm (the penalty's balance, 10 cm / WEIGHT^2).
-WEIGHT = 30.0
+WEIGHT = 50.0
 KINDS = ("no_contact", "on_floor", "balance")
 FEET = ("left_foot", "right_foot")
 
@@ -52,6 +52,7 @@ class Constraints(eqx.Module):
     n_env_groups: int = eqx.field(static=True)
     env_margin: Float[Array, ""]
     sole: Int[Array, " F"]  # into `spheres`
+    sole_height: Float[Array, " F"]  # m, the floor each sole sphere stands on
     sole_center: Float[Array, "F 3"]  # m, where each sole sphere's centre stays
     edge_normal: Float[Array, "E 2"]
     edge_offset: Float[Array, " E"]
@@ -73,10 +74,52 @@ def _segments(body: Body, names) -> list[int]:
 
 def resolve_constraints(body: Body, targets: Sequence, init: Pose) -> Constraints | None:
     """The constraint targets (`Target.no_contact`, `.on_floor`, `.balance`) merged, their
-    floor places taken from `init` (traceable in `init`). None when there are none."""
+    floor places taken from `init` (traceable in `init`). None when there are none. The
+    host work (which pairs, which spheres) is cached per body geometry and constraints."""
     targets = [t for t in targets if is_constraint(t)]
     if not targets:
         return None
+    key = (_geometry_key(body), tuple(_target_key(t) for t in targets))
+    if key not in _HOST:
+        _HOST[key] = _host_constraints(body, targets)
+    c = _HOST[key]
+    return _plant_jit(body, c, init) if c.sole.shape[0] else c
+
+
+_HOST: dict = {}
+
+
+def _geometry_key(body: Body) -> tuple:
+    """What the pairs and soles depend on: the structure, limits and standard geometry."""
+    arrays = (
+        body.lengths,
+        body.R_socket_rest,
+        body.rest_position,
+        body.sphere_origins,
+        body.sphere_radii,
+        body.swing_lo,
+        body.swing_hi,
+        body.twist_lo,
+        body.twist_hi,
+    )
+    return (jax.tree.structure(body),) + tuple(np.asarray(a).tobytes() for a in arrays)
+
+
+def _target_key(t) -> tuple:
+    env = (
+        None
+        if t.environment is None
+        else tuple(np.asarray(a).tobytes() for a in jax.tree.leaves(t.environment))
+    )
+    return (t.kind, t.segments, t.margin, _plain(t.height), t.self_contact, env)
+
+
+def _plain(x):
+    return ("traced", id(x)) if isinstance(x, jax.core.Tracer) else float(x)
+
+
+def _host_constraints(body: Body, targets: Sequence) -> Constraints:
+    """`resolve_constraints` without `init`: the soles' places are filled by `_plant`."""
     dtype = jnp.result_type(float)
     kinds = tuple(k for k in KINDS if any(t.kind == k for t in targets))
     contact = [t for t in targets if t.kind == "no_contact"]
@@ -112,31 +155,13 @@ def resolve_constraints(body: Body, targets: Sequence, init: Pose) -> Constraint
     where = {k: n for n, k in enumerate(spheres)}
     remap = np.vectorize(where.__getitem__, otypes=[int])
     empty = np.zeros(0, int)
-    # Where the soles stay: their centres in init, lowered or raised onto z = height.
     heights = {body.segment_index(n): t.height for t in floors for n in t.segments}
-    k = forward(body, init)
-    sole_xyz = k.sphere_centers[soles] if len(soles) else jnp.zeros((0, 3), dtype)
-    r = body.sphere_radii[soles]
-    height = jnp.asarray([heights[seg_of[s]] for s in soles], dtype)
-    sole_center = sole_xyz.at[:, 2].set(height + r) if len(soles) else sole_xyz
-    normals, offsets, edge = (
-        support_edges(sole_center[:, :2])
-        if len(soles)
-        else (
-            jnp.zeros((0, 2), dtype),
-            jnp.zeros(0, dtype),
-            jnp.zeros(0, bool),
-        )
-    )
-    groups = np.asarray([env_segs.index(seg_of[s]) for s in env_spheres], int)
+    n_sole = len(soles)
+    read = {seg_of[s] for s in spheres} | (set(range(body.n_segments)) if balance else set())
     return Constraints(
         kinds=kinds,
         spheres=spheres,
-        segments=tuple(
-            sorted(
-                {seg_of[s] for s in spheres} | (set(range(body.n_segments)) if balance else set())
-            )
-        ),
+        segments=tuple(sorted(int(s) for s in read)),
         feet=tuple(feet),
         n_pair_groups=0 if self_pairs is None else len(self_pairs.segments),
         pair_a=jnp.asarray(empty if self_pairs is None else remap(self_pairs.i)),
@@ -146,16 +171,36 @@ def resolve_constraints(body: Body, targets: Sequence, init: Pose) -> Constraint
         pair_margin=jnp.asarray(max([t.margin for t in selfish], default=0.0), dtype),
         env=env,
         env_sphere=jnp.asarray(remap(env_spheres) if env_spheres else empty),
-        env_group=jnp.asarray(groups),
+        env_group=jnp.asarray(np.asarray([env_segs.index(seg_of[s]) for s in env_spheres], int)),
         n_env_groups=len(env_segs),
         env_margin=jnp.asarray(max([t.margin for t in env_targets], default=0.0), dtype),
-        sole=jnp.asarray(remap(soles) if len(soles) else empty),
-        sole_center=jnp.asarray(sole_center, dtype),
-        edge_normal=normals,
-        edge_offset=offsets,
-        edge=edge,
+        sole=jnp.asarray(remap(soles) if n_sole else empty),
+        sole_height=jnp.stack([jnp.asarray(heights[seg_of[s]], dtype) for s in soles])
+        if n_sole
+        else jnp.zeros(0, dtype),
+        sole_center=jnp.zeros((n_sole, 3), dtype),
+        edge_normal=jnp.zeros((n_sole**2, 2), dtype),
+        edge_offset=jnp.zeros(n_sole**2, dtype),
+        edge=jnp.zeros(n_sole**2, bool),
         balance_margin=jnp.asarray(max([t.margin for t in balance], default=0.0), dtype),
     )
+
+
+def _plant(body: Body, c: Constraints, init: Pose) -> Constraints:
+    """The soles' places: their centres in `init` lowered or raised onto their floor, and
+    the support polygon's candidate edges."""
+    k = forward(body, init)
+    idx = jnp.asarray(c.spheres)[c.sole]
+    center = k.sphere_centers[idx].at[:, 2].set(c.sole_height + body.sphere_radii[idx])
+    normals, offsets, edge = support_edges(center[:, :2])
+    return eqx.tree_at(
+        lambda c: (c.sole_center, c.edge_normal, c.edge_offset, c.edge),
+        c,
+        (center, normals, offsets, edge),
+    )
+
+
+_plant_jit = eqx.filter_jit(_plant)
 
 
 def _merged(envs: list[Environment]) -> Environment:
@@ -208,6 +253,15 @@ def pose_violations(body: Body, pose: Pose, c: Constraints | None) -> Array:
     return constraint_rows(c, k.sphere_centers[idx], k.sphere_radii[idx], k.center_of_gravity)[1]
 
 
+def _floor(body: Body, soles: np.ndarray, init: Pose) -> Array:
+    """The lowest point of the sole spheres in `init` (m)."""
+    k = forward(body, init)
+    return jnp.min(k.sphere_centers[soles, 2] - k.sphere_radii[soles])
+
+
+_floor_jit = eqx.filter_jit(_floor)
+
+
 def standing(body: Body, init: Pose, height: float | None = None) -> list:
     """The targets of a standing body: the feet planted where they are in `init` (on the
     floor at the lowest of their sole spheres), the centre of gravity over them (2 cm
@@ -217,9 +271,9 @@ def standing(body: Body, init: Pose, height: float | None = None) -> list:
     if not all(n in body.segment_names for n in FEET):
         return []
     if height is None:
-        soles = sole_spheres(body, FEET)
-        k = forward(body, init)
-        height = float(jnp.min(k.sphere_centers[soles, 2] - k.sphere_radii[soles]))
+        height = _floor_jit(body, sole_spheres(body, FEET), init)
+        if not isinstance(height, jax.core.Tracer):
+            height = float(height)
     return [
         Target.on_floor(FEET, height=height),
         Target.balance(),

@@ -25,7 +25,16 @@ from jaxtyping import Array, ArrayLike
 
 from .._body import Body, Pose
 from .._spine import spine_angles
-from ._attempt import Attempt, assess, attempt_round, better, no_gradient, round_caps, solve_free
+from ._attempt import (
+    Attempt,
+    assess,
+    attempt_round,
+    better,
+    no_gradient,
+    phase_steps,
+    round_caps,
+    solve_free,
+)
 from ._problem import reach_bound, start_links
 from ._targets import TargetSet
 from ._unknowns import Layout, make_layout, path_to_top, point_segment
@@ -263,9 +272,10 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols):
     best, steps = None, 0
     start_pose = init
     for phase, (layout, ts) in enumerate(zip(layouts, phase_targets_of(layouts, phase_targets))):
-        beyond, far, caps = phase_plan(body, layouts, phase, start_pose, ts.point_xyz, max_steps)
+        steps_k = phase_steps(layout, max_steps)
+        beyond, far, caps = phase_plan(body, layouts, phase, start_pose, ts.point_xyz, steps_k)
         if not far.any():
-            caps = round_caps(max_steps)
+            caps = round_caps(steps_k)
         for k in range(1 if far.any() else starts):
             a = run_start(body, layout, start_pose, ts, k, caps, tols, phase == 0)
             steps += int(a.steps)
@@ -285,7 +295,8 @@ def solve_traced(body, layouts, init, phase_targets, starts, max_steps, tols):
     start_pose = init
     for phase, (layout, ts) in enumerate(zip(layouts, phase_targets_of(layouts, phase_targets))):
         b0, p0, t0, tp0, ta0 = no_gradient((body, start_pose, ts, *tols))
-        x, s = _all_starts_jit(b0, layout, p0, t0, starts, max_steps, tp0, ta0, phase == 0)
+        steps_k = phase_steps(layout, max_steps)
+        x, s = _all_starts_jit(b0, layout, p0, t0, starts, steps_k, tp0, ta0, phase == 0)
         a = _assess_jit(body, layout, start_pose, ts, x, s, *tols, True)
         steps = steps + s
         if best is not None and (a.pose.spine_target is None) != (best.pose.spine_target is None):

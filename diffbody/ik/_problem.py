@@ -41,6 +41,8 @@ SPINE_PULL = 3e-5
 # are shortest in the free variables, so the arm takes most of a reach and the trunk bends
 # progressively, only as far as the arm needs (the reach ladder, README "Reach").
 SPINE_STIFFNESS = 2.0
+# Standing, the pelvis's shift and the knees and ankles are this much stiffer (`stiffness_of`).
+STANDING_STIFFNESS = 4.0
 
 
 def _gather_or(values: Array, index: np.ndarray, mask: np.ndarray, default: Array) -> Array:
@@ -65,13 +67,14 @@ class Problem(eqx.Module):
     hi: Float[Array, " n_free"]
     x0: Float[Array, " n_free"]  # the start's free variables
     pull: Float[Array, " n_free"]  # square roots of the pull weights
+    stiffness: Float[Array, " n_free"]  # the free variables are the unknowns times this
 
     # --- the free vector to the live segments -------------------------------------------
     def state(self, x: Array):
         """Swing vectors (m, 2), twists (m,), spine target (or None) and root placement of
         the free vector, every limit exact (box map, then the radial pull into the cone)."""
         lay, b = self.layout, self.body
-        sx, sy, tw, sp, root = lay.split(x)
+        sx, sy, tw, sp, root = lay.split(x / self.stiffness)
         lo_sx, lo_sy, lo_tw, lo_sp, _ = lay.split(self.lo)
         hi_sx, hi_sy, hi_tw, hi_sp, _ = lay.split(self.hi)
         m = lay.chain.size
@@ -331,6 +334,8 @@ def make_problem(body: Body, layout: Layout, init: Pose) -> Problem:
         zeros = jnp.zeros(6, x0.dtype)
         lo, hi, x0 = (jnp.concatenate([a, zeros]) for a in (lo, hi, x0))
         pull.append(np.full(6, np.sqrt(PULL)))
+    stiffness = stiffness_of(body, layout)
+    x0 = x0 * stiffness
     return Problem(
         body=body,
         layout=layout,
@@ -344,7 +349,41 @@ def make_problem(body: Body, layout: Layout, init: Pose) -> Problem:
         hi=hi,
         x0=x0,
         pull=jnp.asarray(np.concatenate(pull), x0.dtype),
+        stiffness=jnp.asarray(stiffness, x0.dtype),
     )
+
+
+def stiffness_of(body: Body, layout: Layout) -> np.ndarray:
+    """Per free variable, its stiffness (the spine's is in `state`): 1, but standing, the
+    pelvis's shift and the knees and ankles `STANDING_STIFFNESS`, so that the damped steps
+    bend the hips and the spine, as a person reaching does, rather than tilt the whole body
+    over the ankles."""
+    k = np.ones(layout.n_free)
+    if not layout.standing:
+        return k
+    seg = np.asarray(layout.chain.segments, int)
+    below_hips = {s for s in range(body.n_segments) if _below_hip(body, s)}
+    n_sx, n_sy, n_tw, n_sp, _ = layout.sizes
+    parts = [layout.swing_x, layout.swing_y, layout.twist]
+    at = 0
+    for part in parts:
+        for j, slot in enumerate(part):
+            if seg[slot] in below_hips:
+                k[at + j] = STANDING_STIFFNESS
+        at += len(part)
+    k[at + n_sp : at + n_sp + 3] = STANDING_STIFFNESS  # the root's shift
+    return k
+
+
+def _below_hip(body: Body, s: int) -> bool:
+    """Whether a segment lies below a thigh (a shank, a foot): its grandparent is no trunk
+    segment but its path holds a segment hanging from the pelvis."""
+    path = []
+    while s >= 0:
+        path.append(s)
+        s = body.parent[s]
+    names = [body.segment_names[p] for p in path]
+    return any(n.endswith("_thigh") for n in names[1:])
 
 
 def reach_bound(body: Body, layout: Layout, links: Links) -> tuple[np.ndarray, np.ndarray]:

@@ -67,6 +67,7 @@ class Layout:
     point_slot: tuple[int, ...]
     axis_slot: tuple[int, ...]
     read_slot: tuple[int, ...] = ()  # the slot of every segment (-1: not read), constraints
+    standing: bool = False  # the root is free and the legs carry it (feet on the floor)
 
     @property
     def sizes(self) -> tuple[int, int, int, int, int]:
@@ -190,6 +191,7 @@ def make_layout(
         read_slot=tuple(slot(s) if s in read else -1 for s in range(body.n_segments))
         if read
         else (),
+        standing=bool(legs),
     )
 
 
