@@ -26,12 +26,16 @@ def sphere_distances(
     return safe_norm(centers[i] - centers[j]) - radii[i] - radii[j]
 
 
-def _closest(values: Array, group: np.ndarray, n_groups: int) -> Array:
-    """Per group, the index of its smallest value (the first on ties); (n_groups,)."""
+def _closest(
+    values: Array, group: Int[Array | np.ndarray, " m"], n_groups: int
+) -> tuple[Array, Array]:
+    """Per group, the index of its smallest value (the first on ties) and whether the group
+    has any value; (n_groups,) each. An empty group's index is a valid one (the last)."""
     low = jax.ops.segment_min(values, group, n_groups, indices_are_sorted=False)
     index = jnp.arange(values.shape[0])
     hit = jnp.where(values <= low[group], index, values.shape[0])
-    return jnp.minimum(jax.ops.segment_min(hit, group, n_groups), values.shape[0] - 1)
+    first = jax.ops.segment_min(hit, group, n_groups)
+    return jnp.minimum(first, values.shape[0] - 1), first < values.shape[0]
 
 
 def closest_pair_gaps(
@@ -40,7 +44,7 @@ def closest_pair_gaps(
     i: Int[Array, " P"],
     j: Int[Array, " P"],
     allowance: Float[Array, " P"],
-    group: np.ndarray,
+    group: Int[Array | np.ndarray, " P"],
     n_groups: int,
 ) -> tuple[Float[Array, " S"], Int[Array, " S"]]:
     """Per group of sphere pairs (a pair of segments), the smallest signed distance less
@@ -48,7 +52,7 @@ def closest_pair_gaps(
     centres and radii through the closest pair."""
     fixed = jax.lax.stop_gradient((centers, radii))
     gap = sphere_distances(*fixed, i, j) - allowance
-    k = _closest(gap, group, n_groups)
+    k, _ = _closest(gap, group, n_groups)
     return sphere_distances(centers, radii, i[k], j[k]) - allowance[k], k
 
 
@@ -56,16 +60,17 @@ def environment_gaps(
     centers: Float[Array, "n 3"],
     radii: Float[Array, " n"],
     env: Environment,
-    segment: np.ndarray,
+    segment: Int[Array | np.ndarray, " n"],
     n_segments: int,
 ) -> tuple[Float[Array, "n_seg n_shape"], Int[Array, "n_seg n_shape"]]:
     """Per segment and shape, the smallest signed distance (m) of the segment's spheres
-    (`segment`: each sphere's row) to the shape, and which sphere it is."""
+    (`segment`: each sphere's row) to the shape, and which sphere it is. A row without
+    spheres (the whole body's) is +inf, its sphere index meaningless."""
     if env.n_shapes == 0:
         return jnp.zeros((n_segments, 0), centers.dtype), jnp.zeros((n_segments, 0), int)
     fixed = jax.lax.stop_gradient((centers, radii))
     d = sphere_environment_distances(*fixed, env)  # (n, n_shape)
-    k = jax.vmap(lambda col: _closest(col, segment, n_segments), in_axes=1, out_axes=1)(d)
+    k, present = jax.vmap(lambda col: _closest(col, segment, n_segments), in_axes=1, out_axes=1)(d)
     # Column s's closest spheres measured again, with derivatives, against shape s alone.
     rows = jax.vmap(lambda kk: sphere_environment_distances(centers[kk], radii[kk], env))(k.T)
-    return jnp.diagonal(rows, axis1=0, axis2=2), k
+    return jnp.where(present, jnp.diagonal(rows, axis1=0, axis2=2), jnp.inf), k

@@ -105,7 +105,8 @@ class Environment(eqx.Module):
         return sum(a.shape[0] for a in (self.planes, self.spheres, self.capsules, self.boxes))
 
     def shape_names(self) -> tuple[str, ...]:
-        """ "plane 0", "sphere 1", ... in the order of `sphere_environment_distances`' columns."""
+        """ "plane 0", "sphere 0", "box 0", "box 1", ...: each shape, numbered within its kind
+        in the order given, in the order of `sphere_environment_distances`' columns."""
         kinds = ("plane", "sphere", "capsule", "box")
         arrays = (self.planes, self.spheres, self.capsules, self.boxes)
         return tuple(f"{k} {i}" for k, a in zip(kinds, arrays) for i in range(a.shape[0]))

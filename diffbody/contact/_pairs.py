@@ -8,8 +8,9 @@ A pair of segments is never checked when
 - they meet at a joint, counting each segment's rigid group as one (parent and child,
   siblings hanging from one joint, a thigh and the pelvis): their spheres meet at the joint
   by construction;
-- both belong to the trunk (the pelvis and the vertebrae with the neck): Bendspine spreads a
-  bend over 18 joints of a few degrees each, so the slices cannot fold into each other.
+- both belong to the trunk (the pelvis with its two halves and the vertebrae with the
+  neck): Bendspine spreads a bend over 18 joints of a few degrees each, so the slices cannot
+  fold into each other.
 Every other pair of spheres is checked. In the standard position the arms already sit up to
 40 mm into the torso, hips and thighs (data/README.md, "Known properties"): each sphere pair's
 rest overlap is its zero. The distance a pair reports against its allowance is
@@ -26,8 +27,9 @@ from .._body import Body, rest_geometry
 
 
 def trunk(body: Body) -> set[int]:
-    """The segments of the trunk: the whole body, the vertebrae (with the neck) and the
-    segments above them (the pelvis)."""
+    """The segments of the trunk: the whole body, the vertebrae (with the neck), the
+    segments above them (the pelvis) and every segment rigidly joined to one of these (the
+    pelvis's two halves, `rigid_groups`)."""
     out = {0}
     names = () if body.spine is None else body.spine.segment_names
     for name in names:
@@ -35,7 +37,9 @@ def trunk(body: Body) -> set[int]:
         while s >= 0:
             out.add(s)
             s = body.parent[s]
-    return out
+    group = rigid_groups(body)
+    groups = {group[s] for s in out}
+    return {s for s in range(body.n_segments) if group[s] in groups}
 
 
 def rigid_groups(body: Body) -> list[int]:

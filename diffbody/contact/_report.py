@@ -20,7 +20,9 @@ TOUCH = 1e-4
 class Contact:
     """One touching or interpenetrating pair: two segments, or a segment and a shape.
 
-    depth: how far the closest spheres interpenetrate (m; 0 when they just touch);
+    sphere_a, sphere_b: the sphere pair `Target.no_contact` measures, the one deepest
+    beyond its rest overlap (the closest sphere for a shape);
+    depth: how far they interpenetrate (m; 0 when they just touch or are apart);
     rest_depth: their interpenetration in the standard position (m; 0 for a shape);
     excess: depth - rest_depth, what `Target.no_contact` keeps <= -margin."""
 
@@ -59,8 +61,13 @@ class ContactReport:
 
 
 def _self_gaps(body, pose, i, j, allowance, group, n_groups):
+    """Per group: the closest distance, and the gap and index of the pair deepest beyond its
+    allowance (what `Target.no_contact` measures)."""
     k = forward(body, pose)
-    return closest_pair_gaps(k.sphere_centers, k.sphere_radii, i, j, allowance, group, n_groups)
+    c, r = k.sphere_centers, k.sphere_radii
+    raw, _ = closest_pair_gaps(c, r, i, j, jnp.zeros_like(allowance), group, n_groups)
+    gap, deepest = closest_pair_gaps(c, r, i, j, allowance, group, n_groups)
+    return raw, gap, deepest
 
 
 def _env_gaps(body, pose, env, segment, n):
@@ -77,35 +84,28 @@ def contact_report(
 ) -> ContactReport:
     """The segment pairs (those `Target.no_contact` checks, diffbody.contact._pairs) and
     segment-shape pairs whose closest spheres are within `tol` (m) of touching, or
-    interpenetrate, with their depths against the standard position's. Host side."""
+    interpenetrate, with the depth of the sphere pair `Target.no_contact` measures against
+    its depth in the standard position. Host side."""
     pairs = sphere_pairs(body)
     names = body.segment_names
-    z = np.zeros(len(pairs))
-    gaps, k = _self_gaps_jit(
+    allowance = pairs.allowance
+    closest, gaps, k = _self_gaps_jit(
         body,
         pose,
         jnp.asarray(pairs.i),
         jnp.asarray(pairs.j),
-        jnp.asarray(z),
+        jnp.asarray(allowance),
         pairs.segment_pair,
         len(pairs.segments),
     )
-    gaps, k = np.asarray(gaps), np.asarray(k)
+    closest, gaps, k = np.asarray(closest), np.asarray(gaps), np.asarray(k)
     out = []
     for row, (a, b) in enumerate(pairs.segments):
-        if gaps[row] <= tol:
+        if closest[row] <= tol:
             p = k[row]
-            rest = float(pairs.rest[p])
-            out.append(
-                Contact(
-                    names[a],
-                    names[b],
-                    int(pairs.i[p]),
-                    int(pairs.j[p]),
-                    max(-float(gaps[row]), 0.0),
-                    max(-rest, 0.0),
-                )
-            )
+            depth = max(-(float(gaps[row]) + float(allowance[p])), 0.0)
+            rest = max(-float(pairs.rest[p]), 0.0)
+            out.append(Contact(names[a], names[b], int(pairs.i[p]), int(pairs.j[p]), depth, rest))
     if environment is not None and environment.n_shapes:
         seg = np.asarray(body.sphere_segment, int)
         gaps, k = _env_gaps_jit(body, pose, environment, seg, body.n_segments)

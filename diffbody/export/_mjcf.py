@@ -6,6 +6,7 @@ of a diffbody body, are in `_rigid_links`.
 import math
 import os
 import xml.etree.ElementTree as ET
+from collections.abc import Iterable
 from pathlib import Path
 
 import jax
@@ -111,7 +112,23 @@ def _quat(R: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q) * (1.0 if q[0] >= 0 else -1.0)
 
 
-def export_mjcf(body: Body, path: str | os.PathLike) -> Path:
+def _excluded_pairs(body: Body, exclude: Iterable[tuple[str, str]]) -> list[tuple[int, int]]:
+    """Segment index pairs (a < b), sorted, of `export_mjcf`'s `exclude` (checked)."""
+    out = set()
+    for item in exclude:
+        names = tuple(item) if not isinstance(item, str) else (item,)
+        if len(names) != 2 or not all(isinstance(n, str) for n in names):
+            raise ValueError(f"export_mjcf: exclude takes pairs of segment names, got {item!r}")
+        a, b = (body.segment_index(n) for n in names)
+        if a == b:
+            raise ValueError(f"export_mjcf: exclude pairs two different segments, got {item!r}")
+        out.add((min(a, b), max(a, b)))
+    return sorted(out)
+
+
+def export_mjcf(
+    body: Body, path: str | os.PathLike, exclude: Iterable[tuple[str, str]] | None = None
+) -> Path:
     """Write the body as a MuJoCo MJCF model (docs/design.md, section 2 as rigid links:
     `_rigid_links`, whose hinges and caveats apply).
 
@@ -131,13 +148,19 @@ def export_mjcf(body: Body, path: str | os.PathLike) -> Path:
     - `<inertial>` at the centroid with the segment's mass (`TINY_MASS` when massless, so the
       model's total mass exceeds the body's by that).
     - `<contact><exclude>` for segment pairs whose spheres overlap in the standard position,
-      beyond MuJoCo's parent-child filter, so a simulation does not start in self-contact.
+      beyond MuJoCo's parent-child filter, so a simulation does not start in self-contact;
+      or, when `exclude` is given, for exactly those segment pairs (MuJoCo's parent-child
+      filter still applies).
     - A keyframe "standard_position" = `mujoco_qpos(body, body.rest_pose())`; qpos = 0 is
       every segment along its socket's Z, not a human posture.
 
     Args:
         body: the body (its arrays are written as float64, to the last digit).
         path: the file to write.
+        exclude: segment name pairs whose spheres MuJoCo must not collide, instead of the
+            default (the pairs overlapping in the standard position); e.g. the pairs that
+            `diffbody.contact` never checks, so that MuJoCo collides the pairs it checks (they
+            include every parent and child: MuJoCo's parent filter drops no other pair).
 
     Returns:
         The path written.
@@ -190,7 +213,8 @@ def export_mjcf(body: Body, path: str | os.PathLike) -> Path:
             el, "site", name=g.distal_joint_names[i], pos=xml_numbers(0.0, 0.0, g.lengths[i])
         )
     contact = ET.SubElement(root, "contact")
-    for a, b in g.overlapping_pairs():
+    pairs = g.overlapping_pairs() if exclude is None else _excluded_pairs(body, exclude)
+    for a, b in pairs:
         ET.SubElement(contact, "exclude", body1=g.names[a], body2=g.names[b])
     keyframe = ET.SubElement(root, "keyframe")
     ET.SubElement(
