@@ -50,7 +50,7 @@ def limbs_problem(body, xyz0):
     from diffbody.ik._targets import resolve_targets
 
     ts, _ = resolve_targets(body, [db.Target.position(EFFECTOR, xyz0)])
-    layouts = phase_layouts(body, ts, spine=True, free_root=False, segments=None)
+    layouts = phase_layouts(body, [ts], spine=True, free_root=False, segments=None)
     return layouts[0], ts
 
 

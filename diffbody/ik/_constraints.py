@@ -251,31 +251,3 @@ def pose_violations(body: Body, pose: Pose, c: Constraints | None) -> Array:
     k = forward(body, pose)
     idx = np.asarray(c.spheres, int)
     return constraint_rows(c, k.sphere_centers[idx], k.sphere_radii[idx], k.center_of_gravity)[1]
-
-
-def _floor(body: Body, soles: np.ndarray, init: Pose) -> Array:
-    """The lowest point of the sole spheres in `init` (m)."""
-    k = forward(body, init)
-    return jnp.min(k.sphere_centers[soles, 2] - k.sphere_radii[soles])
-
-
-_floor_jit = eqx.filter_jit(_floor)
-
-
-def standing(body: Body, init: Pose, height: float | None = None) -> list:
-    """The targets of a standing body: the feet planted where they are in `init` (on the
-    floor at the lowest of their sole spheres), the centre of gravity over them (2 cm
-    inside), the floor not entered. Empty for a body without both feet."""
-    from ._targets import Target  # the targets module builds on this one's names
-
-    if not all(n in body.segment_names for n in FEET):
-        return []
-    if height is None:
-        height = _floor_jit(body, sole_spheres(body, FEET), init)
-        if not isinstance(height, jax.core.Tracer):
-            height = float(height)
-    return [
-        Target.on_floor(FEET, height=height),
-        Target.balance(),
-        Target.no_contact(environment=Environment.floor(height), self_contact=False),
-    ]

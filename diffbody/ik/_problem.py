@@ -353,6 +353,18 @@ def make_problem(body: Body, layout: Layout, init: Pose) -> Problem:
     )
 
 
+def _own_extra(body: Body, index: int) -> float:
+    """How far a feature effector can lie beyond its segment's distal joint (0 for a
+    joint): its sphere's farthest point from the proximal joint, less the length."""
+    n_j = body.n_joints
+    if index < n_j:
+        return 0.0
+    sph = body.feature_sphere[index - n_j]
+    origin, radius = (np.asarray(a)[sph] for a in (body.sphere_origins, body.sphere_radii))
+    seg = body.sphere_segment[sph]
+    return max(float(np.linalg.norm(origin) + radius) - float(body.lengths[seg]), 0.0)
+
+
 def stiffness_of(body: Body, layout: Layout) -> np.ndarray:
     """Per free variable, its stiffness (the spine's is in `state`): 1, but standing, the
     pelvis's shift and the knees and ankles `STANDING_STIFFNESS`, so that the damped steps
@@ -390,7 +402,8 @@ def reach_bound(body: Body, layout: Layout, links: Links) -> tuple[np.ndarray, n
     """Per point target, the fixed point its chain hangs from (n_p, 3; start links, global
     order) and the farthest its effector can be from it (n_p,): the sum of the live
     segments' lengths on its path, the effector's own segment counted to the effector. inf
-    where the root is free or the whole tree moves (no fixed point)."""
+    where the root is free or the whole tree moves (no fixed point); standing, from the left
+    ankle, the leg counted too."""
     n_j = body.n_joints
     lengths = np.asarray(body.lengths)
     live = set(layout.chain.segments)
@@ -398,6 +411,13 @@ def reach_bound(body: Body, layout: Layout, links: Links) -> tuple[np.ndarray, n
     for index in layout.points:
         seg = point_segment(body, index)
         path = [s for s in path_to_top(body, seg) if s in live]
+        if layout.standing and not layout.full and path:
+            # Standing, the chain hangs from a planted foot: from its ankle, up the leg.
+            foot = body.segment_index("left_foot")
+            leg = path_to_top(body, foot)[1:]
+            anchor.append(np.asarray(links.p_proximal[foot]))
+            bound.append(sum(lengths[s] for s in set(path + leg)) + _own_extra(body, index))
+            continue
         if layout.root or layout.full or not path:
             anchor.append(np.zeros(3))
             bound.append(np.inf if path else 0.0)

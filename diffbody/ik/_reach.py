@@ -19,10 +19,10 @@ from jaxtyping import Array, Bool, Float, Int
 from .._body import Body, Pose
 from ._attempt import Attempt
 from ._constraints import is_constraint, pose_violations, resolve_constraints
-from ._constraints import standing as standing_targets
 from ._phases import is_none, is_traced, phase_layouts, solve_host, solve_traced
 from ._post_projection import finish, needs_projection, twists_to_keep
 from ._targets import Target, TargetSet, flatten_targets, resolve_targets
+from ._targets import standing as standing_targets
 
 
 class ReachStatus(enum.IntEnum):
@@ -240,8 +240,10 @@ def reach_status(reached: Array, valid: Array, beyond: Array, kept: Array | None
             ReachStatus.CONSTRAINED if has else ReachStatus.NOT_REACHED,
         ),
     )
+    # A target beyond every reach pulls hardest on the constraints: it is named first.
+    unreachable = jnp.any(beyond & ~reached)
     return jnp.where(
-        ~held,
+        ~held & ~unreachable,
         ReachStatus.CONSTRAINT_VIOLATED,
         jnp.where(jnp.all(reached), ReachStatus.SUCCESS, missed),
     ).astype(int)

@@ -22,10 +22,11 @@ from jaxtyping import Array, ArrayLike
 from .._batches import chunk_rows, map_chunks, row_sharding
 from .._body import Body, Pose
 from .._spine import spine_angles
-from ._attempt import Attempt, attempt_round, better, round_caps
-from ._phases import is_none, phase_layouts, phase_plan
+from ._attempt import Attempt, attempt_round, better, phase_steps, round_caps
+from ._constraints import is_constraint, pose_violations
+from ._phases import is_none, phase_layouts, phase_plan, phase_targets_of
 from ._post_projection import finish, needs_projection, twists_to_keep
-from ._reach import ReachResult, check_settings, reach_status
+from ._reach import ReachResult, check_settings, constrained_targets, reach_status
 from ._targets import Target, TargetSet, resolve_targets
 from ._unknowns import Layout
 
@@ -74,6 +75,8 @@ def solve_reach_batch(
     progress: bool = True,
     devices: Sequence[jax.Device] | None = None,
     spine: bool = True,
+    standing: bool = True,
+    constraints: Sequence[Target] = (),
     segments: Sequence[str] | None = None,
     starts: int = 8,
     max_steps: int = 30,
@@ -101,11 +104,14 @@ def solve_reach_batch(
         devices: devices to shard each chunk's rows over (default: `jax.local_devices()`;
             sharding is used when there are several). Multi-host: call
             `jax.distributed.initialize()` first, then this in every process with its rows.
-        spine, segments, starts, max_steps, tol_position: as in `solve_reach`.
+        spine, standing, segments, starts, max_steps, tol_position: as in `solve_reach`.
+        constraints: `Target.no_contact(...)`, `.on_floor(...)`, `.balance(...)`, held by
+            every row (the floor places from `init`).
 
     Returns:
         A `ReachResult` of host (numpy) arrays with a leading batch axis n: `reached`,
-        `residuals`, `valid`, `beyond` (n, k), `status`, `steps` (n,), and the poses.
+        `residuals`, `valid`, `beyond` (n, k), `status`, `steps` (n,), `violation`
+        (n, n_constraints), and the poses.
 
     Raises:
         KeyError: an unknown effector (the message lists the valid ones).
@@ -120,6 +126,8 @@ def solve_reach_batch(
         progress=progress,
         devices=devices,
         spine=spine,
+        standing=standing,
+        constraints=constraints,
         segments=segments,
         starts=starts,
         max_steps=max_steps,
@@ -128,7 +136,7 @@ def solve_reach_batch(
     if not len(s.xyz):
         return _empty_result(s)
     best, steps, beyond = _solve_rows(s)
-    return _batch_result(_project(s, best), s.xyz, steps, beyond, s.tol_position)
+    return _batch_result(s, _project(s, best), steps, beyond)
 
 
 # --- the steps of solve_reach_batch ----------------------------------------------------------
@@ -138,7 +146,7 @@ class _Setup:
 
     body: Body
     xyz: np.ndarray  # (n, k, 3) m
-    template: TargetSet  # the targets of one row, its positions to be replaced
+    templates: list[TargetSet]  # per phase, the targets of one row (positions replaced)
     init: Pose
     layouts: list[Layout]  # the phases
     starts: int
@@ -161,6 +169,8 @@ def _prepare(
     progress,
     devices,
     spine,
+    standing,
+    constraints,
     segments,
     starts,
     max_steps,
@@ -182,7 +192,17 @@ def _prepare(
     check_settings(starts=starts, max_steps=max_steps, tol_position=tol_position, tol_angle=1.0)
     template, _ = resolve_targets(body, [Target.position(e, np.zeros(3)) for e in effectors])
     init = body.rest_pose() if init is None else init
-    layouts = phase_layouts(body, template, spine=spine, free_root=False, segments=segments)
+    constraints = list(constraints)
+    if not all(isinstance(c, Target) and is_constraint(c) for c in constraints):
+        raise TypeError(
+            "solve_reach_batch: constraints must be Target.no_contact / .on_floor / .balance"
+        )
+    stand = standing and segments is None
+    phase_targets = constrained_targets(body, template, constraints, init, stand)
+    layouts = phase_layouts(
+        body, phase_targets, spine=spine, free_root=False, segments=segments, stand=stand
+    )
+    templates = phase_targets_of(layouts, phase_targets)
     n = xyz.shape[0]
     devices = list(jax.local_devices() if devices is None else devices)
     chunk = chunk_rows(chunk_size, n, len(devices))
@@ -191,7 +211,7 @@ def _prepare(
     return _Setup(
         body=body,
         xyz=xyz,
-        template=template,
+        templates=templates,
         init=init,
         layouts=layouts,
         starts=starts,
@@ -210,8 +230,10 @@ def _round(s: _Setup, layout: Layout, rows, poses: Pose | None, x, ks, fresh, ca
     indices and whether each begins its start), in chunks: the free vectors, whether each
     solve ended, the attempts."""
 
+    template = s.templates[0 if closed else -1]  # the first phase is the only closed-form one
+
     def fn(p, xyz, x, k, f):
-        return _round_rows_jit(s.body, layout, p, s.template, xyz, x, k, f, cap, *s.tols, closed)
+        return _round_rows_jit(s.body, layout, p, template, xyz, x, k, f, cap, *s.tols, closed)
 
     chunk = s.chunk if 2 * len(rows) > s.chunk else s.retry_chunk
     arrays = (s.xyz[rows], x, ks, fresh)
@@ -245,7 +267,7 @@ def _empty_result(s: _Setup) -> ReachResult:
         s.body,
         layout,
         poses,
-        s.template,
+        s.templates[-1],
         jnp.zeros((1, k, 3)),
         jnp.zeros((1, layout.n_free), s.tols[0].dtype),
         jnp.zeros(1, int),
@@ -255,7 +277,7 @@ def _empty_result(s: _Setup) -> ReachResult:
         False,
     )
     empty = jax.tree.map(lambda a: np.zeros((0,) + a.shape[1:], a.dtype), shapes)
-    return _batch_result(empty, s.xyz, np.zeros(0, int), np.zeros((0, k), bool), s.tol_position)
+    return _batch_result(s, empty, np.zeros(0, int), np.zeros((0, k), bool))
 
 
 def _solve_rows(s: _Setup) -> tuple[Attempt, np.ndarray, np.ndarray]:
@@ -270,7 +292,8 @@ def _solve_rows(s: _Setup) -> tuple[Attempt, np.ndarray, np.ndarray]:
     start_poses = None  # every row from s.init
     todo = np.arange(n)
     for phase, layout in enumerate(s.layouts):
-        beyond, far, far_caps = phase_plan(s.body, s.layouts, phase, s.init, s.xyz, s.max_steps)
+        steps_k = phase_steps(layout, s.max_steps)
+        beyond, far, far_caps = phase_plan(s.body, s.layouts, phase, s.init, s.xyz, steps_k)
         far = far.any(-1)
         rows = todo
         for start in range(s.starts):
@@ -303,7 +326,7 @@ def _start(
     """Start `start` of rows `rows` in rounds, each round over the rows whose solve goes on
     (a row out of reach: `far_caps`). Returns the attempts and the steps of each row."""
     m = len(rows)
-    caps = round_caps(s.max_steps)
+    caps = round_caps(phase_steps(layout, s.max_steps))
     x = np.zeros((m, layout.n_free), np.dtype(s.tols[0].dtype))
     spent = np.zeros(m, int)
     fresh = np.ones(m, bool)
@@ -383,12 +406,29 @@ def _merge(best: Attempt, rows: np.ndarray, new: Attempt) -> Attempt:
     return jax.tree.map(put, best, new)
 
 
-def _batch_result(best: Attempt, xyz: np.ndarray, steps, beyond, tol_position) -> ReachResult:
-    """Per-row results as host arrays (no axis targets in a batch)."""
+def _batch_result(s: _Setup, best: Attempt, steps, beyond) -> ReachResult:
+    """Per-row results as host arrays (no axis targets in a batch); each row's constraint
+    violations from its pose (`pose_violations`)."""
+    xyz, tol_position = s.xyz, s.tol_position
     valid = np.isfinite(xyz).all(-1)
     reached = valid & (best.err_p <= tol_position)
+    c = s.templates[-1].constraints
+    n_c = 0 if c is None else len(c.kinds)
+    violation = np.zeros((len(xyz), n_c))
+    if n_c and len(xyz):
+        violation = np.asarray(
+            map_chunks(
+                lambda p: _violations_jit(s.body, p, c),
+                (best.pose,),
+                chunk=s.chunk,
+                sharding=s.sharding,
+                progress=s.progress,
+                label="constraints",
+            )
+        )
+    kept = violation <= tol_position
     status = (
-        np.asarray(jax.vmap(reach_status)(reached, valid, beyond & valid))
+        np.asarray(jax.vmap(reach_status)(reached, valid, beyond & valid, kept))
         if len(xyz)
         else np.zeros(0, int)
     )
@@ -400,4 +440,11 @@ def _batch_result(best: Attempt, xyz: np.ndarray, steps, beyond, tol_position) -
         beyond=beyond & valid,
         status=status,
         steps=np.asarray(steps),
+        violation=violation,
+        constraint_names=() if c is None else c.kinds,
     )
+
+
+_violations_jit = eqx.filter_jit(
+    lambda body, poses, c: jax.vmap(lambda p: pose_violations(body, p, c))(poses)
+)

@@ -11,9 +11,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._body import Body
+from .._body import Body, Pose
+from .._kinematics import forward
 from ..contact._environment import Environment
-from ._constraints import Constraints
+from ..contact._support import sole_spheres
+from ._constraints import FEET, Constraints
 
 COG = "center_of_gravity"
 
@@ -239,3 +241,29 @@ def mask_invalid(targets: TargetSet) -> tuple[TargetSet, Array, Array]:
         ),
     )
     return safe, ok_p, ok_a
+
+
+def _floor(body: Body, soles: Array, init: Pose) -> Array:
+    """The lowest point of the sole spheres in `init` (m)."""
+    k = forward(body, init)
+    return jnp.min(k.sphere_centers[soles, 2] - k.sphere_radii[soles])
+
+
+_floor_jit = eqx.filter_jit(_floor)
+
+
+def standing(body: Body, init: Pose, height: float | None = None) -> list:
+    """The targets of a standing body: the feet planted where they are in `init` (on the
+    floor at the lowest of their sole spheres), the centre of gravity over them (2 cm
+    inside), the floor not entered. Empty for a body without both feet."""
+    if not all(n in body.segment_names for n in FEET):
+        return []
+    if height is None:
+        height = _floor_jit(body, sole_spheres(body, FEET), init)
+        if not isinstance(height, jax.core.Tracer):
+            height = float(height)
+    return [
+        Target.on_floor(FEET, height=height),
+        Target.balance(),
+        Target.no_contact(environment=Environment.floor(height), self_contact=False),
+    ]

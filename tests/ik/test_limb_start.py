@@ -35,7 +35,7 @@ def test_the_start_lands_on_most_reachable_targets(male50, effector, segments):
     else:
         xyz = np.asarray(fk.joint_positions[:, male50.joint_index(name)])
     ts, _ = resolve_targets(male50, [db.Target.position(name, xyz[0])])
-    layout = phase_layouts(male50, ts, spine=True, free_root=False, segments=None)[0]
+    layout = phase_layouts(male50, [ts], spine=True, free_root=False, segments=None)[0]
     assert len(limbs(male50, layout, ())) == 1
 
     @jax.jit
@@ -61,7 +61,7 @@ def test_no_closed_form_where_it_does_not_apply(male50):
     wrist = [db.Target.position("left_wrist", [0.3, 0.2, 1.1])]
     for targets in (palm + axis, palm + wrist):
         ts, _ = resolve_targets(male50, targets)
-        layout = phase_layouts(male50, ts, spine=True, free_root=False, segments=None)[0]
+        layout = phase_layouts(male50, [ts], spine=True, free_root=False, segments=None)[0]
         assert limbs(male50, layout, ts.axis_segment) == ()
 
 
@@ -75,7 +75,9 @@ def test_a_target_past_the_arm_is_out_of_the_limbs_reach(male50):
     ]
     near, far = shoulder + [0.4, 0.0, -0.1], shoulder + [0.75, 0.0, -0.1]
     ts, _ = resolve_targets(male50, [db.Target.position("left_hand.palm", near)])
-    limbs_phase, trunk_phase = phase_layouts(male50, ts, spine=True, free_root=False, segments=None)
+    limbs_phase, trunk_phase = phase_layouts(
+        male50, [ts], spine=True, free_root=False, segments=None
+    )
     xyz = np.stack([near, far])[:, None]
     assert not beyond_bound(male50, limbs_phase, rest, xyz).any()
     np.testing.assert_array_equal(out_of_reach(male50, limbs_phase, rest, xyz)[:, 0], [0, 1])
