@@ -260,6 +260,15 @@ def run_start(body, layout, init, ts, k: int, caps: list[int], tols, closed_form
     return eqx.tree_at(lambda a: a.steps, a, jnp.asarray(spent))
 
 
+def closed_form(phase: int, ts: TargetSet) -> bool:
+    """Whether a phase's first start is the closed-form limb start: in the limbs' phase,
+    unless contact is avoided. The closed form places the limb straight through whatever
+    lies between, and a start inside the body stays stuck there; from `init` the solve
+    slides the limb along the surfaces it meets."""
+    c = ts.constraints
+    return phase == 0 and (c is None or "no_contact" not in c.kinds)
+
+
 def phase_targets_of(layouts: list[Layout], phase_targets: Sequence[TargetSet]) -> list[TargetSet]:
     """The target set of each layout: a single phase is the trunk's (the last)."""
     return list(phase_targets) if len(layouts) == len(phase_targets) else [phase_targets[-1]]
@@ -277,7 +286,7 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols):
         if not far.any():
             caps = round_caps(steps_k)
         for k in range(1 if far.any() else starts):
-            a = run_start(body, layout, start_pose, ts, k, caps, tols, phase == 0)
+            a = run_start(body, layout, start_pose, ts, k, caps, tols, closed_form(phase, ts))
             steps += int(a.steps)
             if best is None or bool(better(a, best)):
                 best = a
@@ -296,7 +305,8 @@ def solve_traced(body, layouts, init, phase_targets, starts, max_steps, tols):
     for phase, (layout, ts) in enumerate(zip(layouts, phase_targets_of(layouts, phase_targets))):
         b0, p0, t0, tp0, ta0 = no_gradient((body, start_pose, ts, *tols))
         steps_k = phase_steps(layout, max_steps)
-        x, s = _all_starts_jit(b0, layout, p0, t0, starts, steps_k, tp0, ta0, phase == 0)
+        closed = closed_form(phase, ts)
+        x, s = _all_starts_jit(b0, layout, p0, t0, starts, steps_k, tp0, ta0, closed)
         a = _assess_jit(body, layout, start_pose, ts, x, s, *tols, True)
         steps = steps + s
         if best is not None and (a.pose.spine_target is None) != (best.pose.spine_target is None):

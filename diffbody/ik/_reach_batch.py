@@ -24,7 +24,7 @@ from .._body import Body, Pose
 from .._spine import spine_angles
 from ._attempt import Attempt, attempt_round, better, phase_steps, round_caps
 from ._constraints import is_constraint, pose_violations
-from ._phases import is_none, phase_layouts, phase_plan, phase_targets_of
+from ._phases import closed_form, is_none, phase_layouts, phase_plan, phase_targets_of
 from ._post_projection import finish, needs_projection, twists_to_keep
 from ._reach import ReachResult, check_settings, constrained_targets, reach_status
 from ._targets import Target, TargetSet, resolve_targets
@@ -230,7 +230,7 @@ def _round(s: _Setup, layout: Layout, rows, poses: Pose | None, x, ks, fresh, ca
     indices and whether each begins its start), in chunks: the free vectors, whether each
     solve ended, the attempts."""
 
-    template = s.templates[0 if closed else -1]  # the first phase is the only closed-form one
+    template = s.templates[next(i for i, lay in enumerate(s.layouts) if lay is layout)]
 
     def fn(p, xyz, x, k, f):
         return _round_rows_jit(s.body, layout, p, template, xyz, x, k, f, cap, *s.tols, closed)
@@ -338,7 +338,16 @@ def _start(
     for r, cap in enumerate(caps):
         poses = None if start_poses is None else _rows(start_poses, rows[going])
         x_r, done, a = _round(
-            s, layout, rows[going], poses, x[going], ks[going], fresh[going], cap, phase == 0, label
+            s,
+            layout,
+            rows[going],
+            poses,
+            x[going],
+            ks[going],
+            fresh[going],
+            cap,
+            closed_form(phase, s.templates[0]),
+            label,
         )
         x[going], fresh[going] = x_r, False
         spent[going] += a.steps
