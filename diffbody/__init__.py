@@ -2,7 +2,7 @@
 
 The core (this folder's modules) holds the body, its one tree walk, the kinematics, the
 orientation conventions, limits, postures, local frames, the spine and rendering; each family
-of work is a sub-package: `files`, `anthropometry`, `ik`, `fitting`, `images`, `export` and
+of work is a sub-package: `files`, `anthropometry`, `contact`, `ik`, `fitting`, `images`, `export` and
 `cli` (docs/design.md, "Families")."""
 
 import importlib
@@ -44,6 +44,13 @@ _FAMILIES = {
         "scale_population",
         "scale_to",
         "scale_to_percentile",
+    ),
+    "contact": (
+        "Contact",
+        "ContactReport",
+        "Environment",
+        "contact_report",
+        "sphere_pairs",
     ),
     "export": (
         "export_mjcf",
@@ -159,6 +166,13 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         scale_population,
         scale_to,
         scale_to_percentile,
+    )
+    from .contact import (
+        Contact,
+        ContactReport,
+        Environment,
+        contact_report,
+        sphere_pairs,
     )
     from .export import (
         export_mjcf,
@@ -287,6 +301,12 @@ __all__ = [
     "spine_angles",
     "with_spine_angles",
     # Reach
+    # Contact and balance
+    "Contact",
+    "ContactReport",
+    "Environment",
+    "contact_report",
+    "sphere_pairs",
     "ReachResult",
     "ReachStatus",
     "Target",
