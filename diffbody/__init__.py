@@ -2,8 +2,8 @@
 
 The core (this folder's modules) holds the body, its one tree walk, the kinematics, the
 orientation conventions, limits, postures, local frames, the spine and rendering; each family
-of work is a sub-package: `files`, `anthropometry`, `contact`, `ik`, `fitting`, `images`, `export` and
-`cli` (docs/design.md, "Families")."""
+of work is a sub-package: `files`, `anthropometry`, `contact`, `ik`, `fitting`, `images`,
+`export` and `cli` (docs/design.md, "Families")."""
 
 import importlib
 from typing import TYPE_CHECKING
