@@ -1,7 +1,9 @@
-"""Contact throughput of the default body: self-distance queries against MuJoCo's collision.
+"""Contact throughput of the default body: self-distance queries against MuJoCo's collision,
+and what the constraints (standing, balance, contact avoidance) cost a reach.
 
-    python benchmarks/collision.py [--device cpu|gpu] [--quick] [--tables self_distance]
+    python benchmarks/collision.py [--device cpu|gpu] [--quick] [--tables self_distance reach]
                                    [--batch 1024] [--mujoco-poses N] [--repeats 7]
+                                   [--reach-rows 64] [--arm-rows 256]
                                    [--skip-mujoco] [--x64] [--variant male50] [--out DIR]
 
 Prints the machine and versions, then each table of `--tables` (default: all of `TABLES`).
@@ -28,6 +30,8 @@ pair's gap whether it touches or not: not the same output, the same question (wh
 what, how deep) of the same spheres. Goal: diffbody's "pose -> gaps" queries/s >= 10x the
 one-core MuJoCo loop's (as benchmarks/fk.py compares kinematics); the ratio over the
 threaded loop is printed beside it.
+
+reach: see `reach`.
 
 A table is a function (body, args, run) -> goals, named in `TABLES`; `--tables` picks some.
 """
@@ -233,7 +237,133 @@ def mujoco_figures(body, angles, args) -> dict:
 
 
 # name -> a function (body, args, run) -> list of goals; each fills run.table(name, ...).
-TABLES = {"self_distance": self_distance}
+# The reaches of the `reach` table.
+GOAL_ON_OVER_OFF = 2.0  # with avoidance and balance, at most this many times the time
+GOAL_ARM_ONLY = 1.05  # arm-only reaches with standing on: no slower than off, within 5 %
+ARM_SPHERES = ("left_upper_arm", "left_forearm", "left_hand")
+
+
+def _rate(fn, n: int, repeats: int) -> tuple[float, float, object]:
+    """(first call s, median of later calls s, the last result) of fn() over n rows."""
+    out, first = None, 0.0
+    t0 = time.perf_counter()
+    out = fn()
+    first = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return first, statistics.median(times), out
+
+
+def reach(body, args, run) -> list[Goal]:
+    """The reach table: what the constraints cost a reach.
+
+    Far reaches: `--reach-rows` left-palm targets 0.75-1.2 m in front of the left shoulder,
+    0.3 m either side, 0.4 m up or down (seed 1), by `solve_reach_batch` with the default
+    unknowns: "off" with standing=False (the pelvis fixed in space, the spine alone bends;
+    no constraint), "on" with standing (feet planted, balance, the floor: the default) and
+    `Target.no_contact` of the left arm's segments (the body). Goal: on costs less than
+    2x off in solves/s. Not the same answers: off bends the spine as far as it goes, on
+    stands and keeps clear; the success rates are printed beside.
+
+    Arm-only reaches: palms of random left-arm poses (`peers.arm_poses`, seed 0), reached
+    by the arm alone, so standing never joins: warm `solve_reach` (median of `--repeats`
+    calls on distinct targets, interleaved) and `solve_reach_batch`, standing on (the
+    default) against off. Goal: on no slower than off, within 5 %."""
+    from peers import arm_poses, palm_positions
+
+    import diffbody as db
+
+    n = args.reach_rows
+    rest = db.forward(body, body.rest_pose())
+    shoulder = np.asarray(rest.joint_positions[body.joint_index("left_shoulder")])
+    rng = np.random.default_rng(1)
+    far = shoulder + np.stack(
+        [rng.uniform(0.75, 1.2, n), rng.uniform(-0.3, 0.3, n), rng.uniform(-0.4, 0.4, n)], -1
+    )
+    avoid = [db.Target.no_contact(ARM_SPHERES)]
+    table = run.table(
+        "reach", ["", "rows", "first call (s)", "run (s)", "reached", "solves/s"], "lrrrrr"
+    )
+    print(f"\nreach: {n} far left-palm targets (0.75-1.2 m in front of the shoulder)")
+    print(f"{'':>52} {'rows':>5} {'first s':>8} {'run s':>8} {'reached':>8} {'solves/s':>9}")
+
+    def row(name, rows, first, run_s, out):
+        ok = float(np.mean(np.asarray(out.status) == db.ReachStatus.SUCCESS))
+        print(f"{name:>52} {rows:>5} {first:>8.1f} {run_s:>8.2f} {ok:>8.1%} {rows / run_s:>9.1f}")
+        table.add(
+            name, f"{rows:,}", f"{first:.1f}", f"{run_s:.2f}", f"{ok:.1%}", f"{rows / run_s:,.1f}"
+        )
+        return ok
+
+    def batch(xyz, **kw):
+        return lambda: db.solve_reach_batch(body, "left_hand.palm", xyz, progress=False, **kw)
+
+    repeats = max(1, args.repeats // 3)
+    f_off, r_off, o_off = _rate(batch(far, standing=False), n, repeats)
+    row("off: pelvis fixed, spine bends (standing=False)", n, f_off, r_off, o_off)
+    f_on, r_on, o_on = _rate(batch(far, constraints=avoid), n, repeats)
+    ok_on = row("on: standing, balance, floor, arm avoids the body", n, f_on, r_on, o_on)
+    violated = int(np.sum(np.asarray(o_on.status) == db.ReachStatus.CONSTRAINT_VIOLATED))
+    constrained = int(np.sum(np.asarray(o_on.status) == db.ReachStatus.CONSTRAINED))
+    print(f"  on: {constrained} constrained (kept the constraints, missed), {violated} violated")
+
+    poses = arm_poses(body, args.arm_rows, np.random.default_rng(0))
+    palms = palm_positions(body, poses)
+    f_a0, r_a0, o_a0 = _rate(batch(palms, standing=False), len(palms), repeats)
+    row("arm-only batch, standing off", len(palms), f_a0, r_a0, o_a0)
+    f_a1, r_a1, o_a1 = _rate(batch(palms), len(palms), repeats)
+    row("arm-only batch, standing on (default)", len(palms), f_a1, r_a1, o_a1)
+    # Warm single solves, interleaved: on and off alternate over the same targets.
+    single = {False: [], True: []}
+    for standing in (False, True):  # warm both
+        db.solve_reach(body, [db.Target.position("left_hand.palm", palms[0])], standing=standing)
+    for xyz in palms[: args.repeats * 3]:
+        for standing in (False, True):
+            t0 = time.perf_counter()
+            out = db.solve_reach(
+                body, [db.Target.position("left_hand.palm", xyz)], standing=standing
+            )
+            jax.block_until_ready(out.pose.angles)
+            single[standing].append(time.perf_counter() - t0)
+    s_off, s_on = (statistics.median(single[k]) for k in (False, True))
+    print(f"  arm-only solve_reach warm median: off {s_off * 1e3:.2f} ms, on {s_on * 1e3:.2f} ms")
+    table.add(
+        "arm-only solve_reach warm, standing off", "1", "-", ms(s_off), "-", f"{1 / s_off:,.0f}"
+    )
+    table.add("arm-only solve_reach warm, standing on", "1", "-", ms(s_on), "-", f"{1 / s_on:,.0f}")
+    return [
+        goal(
+            f"far reaches: avoidance and balance on over off, time ({n} rows; "
+            f"{ok_on:.0%} reached on)",
+            r_on / r_off,
+            GOAL_ON_OVER_OFF,
+            fmt=".2f",
+            unit="x",
+            op="<",
+        ),
+        goal(
+            f"arm-only solve_reach_batch ({len(palms)} rows): standing on over off, time",
+            r_a1 / r_a0,
+            GOAL_ARM_ONLY,
+            fmt=".2f",
+            unit="x",
+            op="<=",
+        ),
+        goal(
+            "arm-only solve_reach warm: standing on over off, time",
+            s_on / s_off,
+            GOAL_ARM_ONLY,
+            fmt=".2f",
+            unit="x",
+            op="<=",
+        ),
+    ]
+
+
+TABLES = {"self_distance": self_distance, "reach": reach}
 
 
 def main() -> None:
@@ -249,12 +379,16 @@ def main() -> None:
         "--mujoco-poses", type=int, default=None, help="the first N of the batch (default all)"
     )
     parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--reach-rows", type=int, default=None, help="default 64 (--quick 4)")
+    parser.add_argument("--arm-rows", type=int, default=None, help="default 256 (--quick 8)")
     parser.add_argument("--skip-mujoco", action="store_true", help="no MuJoCo comparison")
     parser.add_argument("--x64", action="store_true", help="run in float64")
     args = parser.parse_args()
     select_device(args.device, args.x64)
     args.batch = args.batch or (64 if args.quick else 1024)
     args.mujoco_poses = min(args.mujoco_poses or args.batch, args.batch)
+    args.reach_rows = args.reach_rows or (4 if args.quick else 64)
+    args.arm_rows = args.arm_rows or (8 if args.quick else 256)
     if args.quick:
         args.repeats = 3
     body = load_body(variant=args.variant)
@@ -268,6 +402,8 @@ def main() -> None:
         batch=args.batch,
         mujoco_poses=args.mujoco_poses,
         repeats=args.repeats,
+        reach_rows=args.reach_rows,
+        arm_rows=args.arm_rows,
         seed=0,
     )
     goals = []

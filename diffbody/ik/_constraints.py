@@ -79,7 +79,7 @@ def resolve_constraints(body: Body, targets: Sequence, init: Pose) -> Constraint
     targets = [t for t in targets if is_constraint(t)]
     if not targets:
         return None
-    key = (_geometry_key(body), tuple(_target_key(t) for t in targets))
+    key = (geometry_key(body), tuple(target_key(t) for t in targets))
     if key not in _HOST:
         _HOST[key] = _host_constraints(body, targets)
     c = _HOST[key]
@@ -89,8 +89,23 @@ def resolve_constraints(body: Body, targets: Sequence, init: Pose) -> Constraint
 _HOST: dict = {}
 
 
+def geometry_key(body: Body) -> tuple:
+    """What the pairs and soles depend on: the structure, limits and standard geometry
+    (remembered per body object: reading the arrays back costs a warm solve's time)."""
+    seen = _KEYS.get(id(body))
+    if seen is not None and seen[0] is body:
+        return seen[1]
+    key = _geometry_key(body)
+    if len(_KEYS) >= 64:
+        _KEYS.pop(next(iter(_KEYS)))
+    _KEYS[id(body)] = (body, key)
+    return key
+
+
+_KEYS: dict = {}
+
+
 def _geometry_key(body: Body) -> tuple:
-    """What the pairs and soles depend on: the structure, limits and standard geometry."""
     arrays = (
         body.lengths,
         body.R_socket_rest,
@@ -105,7 +120,7 @@ def _geometry_key(body: Body) -> tuple:
     return (jax.tree.structure(body),) + tuple(np.asarray(a).tobytes() for a in arrays)
 
 
-def _target_key(t) -> tuple:
+def target_key(t) -> tuple:
     env = (
         None
         if t.environment is None

@@ -18,7 +18,13 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._body import Body, Pose
 from ._attempt import Attempt
-from ._constraints import is_constraint, pose_violations, resolve_constraints
+from ._constraints import (
+    geometry_key,
+    is_constraint,
+    pose_violations,
+    resolve_constraints,
+    target_key,
+)
 from ._phases import is_none, is_traced, phase_layouts, solve_host, solve_traced
 from ._post_projection import finish, needs_projection, twists_to_keep
 from ._targets import Target, TargetSet, flatten_targets, resolve_targets
@@ -148,9 +154,10 @@ def solve_reach(
     if not goals:
         raise ValueError("solve_reach: give a position or axis target besides the constraints")
     ts, order = resolve_targets(body, goals)
-    init = _rest_pose_jit(body) if init is None else init
+    default_init = init is None
+    init = _rest_pose_jit(body) if default_init else init
     stand = standing and not free_root and segments is None
-    phase_targets = constrained_targets(body, ts, flat, init, stand)
+    phase_targets = constrained_targets(body, ts, flat, init, stand, default_init)
     layouts = phase_layouts(
         body, phase_targets, spine=spine, free_root=free_root, segments=segments, stand=stand
     )
@@ -169,21 +176,39 @@ def solve_reach(
 
 
 def constrained_targets(
-    body: Body, ts: TargetSet, flat: Sequence[Target], init: Pose, stand: bool
+    body: Body,
+    ts: TargetSet,
+    flat: Sequence[Target],
+    init: Pose,
+    stand: bool,
+    default_init: bool = False,
 ) -> list[TargetSet]:
     """The target sets of the limbs' phase and the trunk's: the position and axis targets
-    with the given constraints, the trunk's with standing's added when `stand`."""
+    with the given constraints, the trunk's with standing's added when `stand`. From the
+    standard position (`default_init`) the constraints are remembered per body and
+    constraints, as they depend on nothing else."""
     given = [t for t in flat if is_constraint(t)]
-    extra = standing_targets(body, init) if stand else []
-    limbs = eqx.tree_at(
-        lambda t: t.constraints, ts, resolve_constraints(body, given, init), is_leaf=is_none
-    )
-    if not extra:
-        return [limbs, limbs]
-    trunk = eqx.tree_at(
-        lambda t: t.constraints, ts, resolve_constraints(body, given + extra, init), is_leaf=is_none
-    )
-    return [limbs, trunk]
+    key = None
+    if default_init and not is_traced(body, [t.height for t in given]):
+        key = (geometry_key(body), stand, tuple(target_key(t) for t in given))
+    if key is None or key not in _DEFAULT:
+        extra = standing_targets(body, init) if stand else []
+        limbs = resolve_constraints(body, given, init)
+        trunk = resolve_constraints(body, given + extra, init) if extra else limbs
+        if key is None:
+            return [_with(ts, limbs), _with(ts, trunk)]
+        if len(_DEFAULT) >= 64:
+            _DEFAULT.pop(next(iter(_DEFAULT)))
+        _DEFAULT[key] = (limbs, trunk)
+    limbs, trunk = _DEFAULT[key]
+    return [_with(ts, limbs), _with(ts, trunk)]
+
+
+_DEFAULT: dict = {}
+
+
+def _with(ts: TargetSet, c) -> TargetSet:
+    return eqx.tree_at(lambda t: t.constraints, ts, c, is_leaf=is_none)
 
 
 _rest_pose_jit = eqx.filter_jit(lambda body: body.rest_pose())
