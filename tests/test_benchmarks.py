@@ -32,7 +32,17 @@ from results import RESULTS, load  # noqa: E402
 
 # Tables that only a full run fills (peers are not run by --quick).
 FULL_RUN_ONLY = {("ik", "peers")}
-BENCHMARKS = ("fk", "spine", "ik", "solvers", "anthropometry", "mocap", "webb", "_sphere_cloud")
+BENCHMARKS = (
+    "fk",
+    "spine",
+    "ik",
+    "solvers",
+    "anthropometry",
+    "mocap",
+    "webb",
+    "_sphere_cloud",
+    "collision",
+)
 
 
 def readme_tables() -> list[tuple[str, str, str]]:
