@@ -335,20 +335,11 @@ def _start(
     out = None
     going = np.arange(m)
     label = "solves" if phase == 0 and np.all(start == 0) else "solves, further"
+    closed = closed_form(phase, s.templates[0])
     for r, cap in enumerate(caps):
         poses = None if start_poses is None else _rows(start_poses, rows[going])
-        x_r, done, a = _round(
-            s,
-            layout,
-            rows[going],
-            poses,
-            x[going],
-            ks[going],
-            fresh[going],
-            cap,
-            closed_form(phase, s.templates[0]),
-            label,
-        )
+        g = going
+        x_r, done, a = _round(s, layout, rows[g], poses, x[g], ks[g], fresh[g], cap, closed, label)
         x[going], fresh[going] = x_r, False
         spent[going] += a.steps
         out = a if out is None else _merge(out, going, a)
