@@ -50,7 +50,7 @@ class Constraints(eqx.Module):
     env_sphere: Int[Array, " K"]  # into `spheres`
     env_group: Int[Array, " K"]  # row of the sphere's segment
     n_env_groups: int = eqx.field(static=True)
-    env_margin: Float[Array, ""]
+    env_margin: Float[Array, "n_env_seg n_shape"]  # m; OFF where no target asks
     sole: Int[Array, " F"]  # into `spheres`
     sole_height: Float[Array, " F"]  # m, the floor each sole sphere stands on
     sole_center: Float[Array, "F 3"]  # m, where each sole sphere's centre stays
@@ -188,7 +188,7 @@ def _host_constraints(body: Body, targets: Sequence) -> Constraints:
         env_sphere=jnp.asarray(remap(env_spheres) if env_spheres else empty),
         env_group=jnp.asarray(np.asarray([env_segs.index(seg_of[s]) for s in env_spheres], int)),
         n_env_groups=len(env_segs),
-        env_margin=jnp.asarray(max([t.margin for t in env_targets], default=0.0), dtype),
+        env_margin=jnp.asarray(_env_margins(body, env_targets, env_segs), dtype),
         sole=jnp.asarray(remap(soles) if n_sole else empty),
         sole_height=jnp.stack([jnp.asarray(heights[seg_of[s]], dtype) for s in soles])
         if n_sole
@@ -218,6 +218,28 @@ def _plant(body: Body, c: Constraints, init: Pose) -> Constraints:
 _plant_jit = eqx.filter_jit(_plant)
 
 
+# The margin of a segment and shape that no target pairs: its row never binds.
+OFF = -1e6
+
+
+def _env_margins(body: Body, targets: list, env_segs: list[int]) -> np.ndarray:
+    """(segments, shapes) the margin each segment keeps from each shape of the merged
+    environment (`_merged`: planes, spheres, capsules, boxes, each kind in target order):
+    the largest of the targets that name both, OFF where none does."""
+    kinds = ("planes", "spheres", "capsules", "boxes")
+    counts = np.asarray([[getattr(t.environment, k).shape[0] for k in kinds] for t in targets])
+    counts = counts.reshape(-1, 4)
+    start = np.concatenate([[0], np.cumsum(counts.sum(0))[:-1]])  # each kind's first column
+    out = np.full((len(env_segs), int(counts.sum())), OFF)
+    for n, t in enumerate(targets):
+        rows = [env_segs.index(s) for s in _segments(body, t.segments)]
+        for k in range(4):
+            first = start[k] + counts[:n, k].sum()
+            cols = np.arange(first, first + counts[n, k])
+            out[np.ix_(rows, cols)] = np.maximum(out[np.ix_(rows, cols)], t.margin)
+    return out
+
+
 def _merged(envs: list[Environment]) -> Environment:
     if not envs:
         return Environment.of()
@@ -242,7 +264,7 @@ def constraint_rows(
             gap, _ = environment_gaps(
                 centers[c.env_sphere], radii[c.env_sphere], c.env, c.env_group, c.n_env_groups
             )
-            parts.append(jax.nn.relu(c.env_margin - gap).ravel())
+            parts.append(jax.nn.relu(c.env_margin - gap).ravel())  # OFF: never binds
         r = jnp.concatenate(parts) if parts else jnp.zeros(0, centers.dtype)
         rows.append(r)
         worst.append(jnp.max(r, initial=0.0))

@@ -171,3 +171,22 @@ def test_bad_constraints_are_rejected_clearly(male50, targets, error, words):
 def test_bad_constraint_settings_name_the_field(build, words):
     with pytest.raises(ValueError, match=words):
         build()
+
+
+def test_each_environment_keeps_its_own_segments_and_margin(male50):
+    """Regression: merged environments once applied every target's largest margin to every
+    named segment, so an arm's 1 cm clearance from a post lifted the planted feet 1 cm off
+    the floor (CONSTRAINT_VIOLATED). Each segment keeps each shape's own target's margin."""
+    from diffbody.ik._constraints import OFF, resolve_constraints
+
+    post = db.Environment.of(boxes=[((0.28, 0.13, 0.8), (0.03, 0.05, 0.8))])
+    targets = [
+        db.Target.no_contact(ARM_SPHERES, environment=post, margin=0.01),
+        db.Target.no_contact(FEET, environment=db.Environment.floor(), self_contact=False),
+    ]
+    c = resolve_constraints(male50, targets, male50.rest_pose())
+    rows = sorted(male50.segment_index(s) for s in ARM_SPHERES + FEET)
+    margin = np.asarray(c.env_margin)  # columns: the floor (planes first), then the post
+    for r, seg in enumerate(rows):
+        on_arm = male50.segment_names[seg] in ARM_SPHERES
+        np.testing.assert_array_equal(margin[r], [OFF, 0.01] if on_arm else [0.0, OFF])
