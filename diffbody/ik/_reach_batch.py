@@ -384,15 +384,15 @@ def _project(s: _Setup, best: Attempt) -> Attempt:
     keep = twists_to_keep(s.body, final) if needs_projection(s.body, final) else None
     if keep is None:
         return best
-    poses = map_chunks(
-        lambda p: _finish_rows_jit(s.body, p, keep),
-        (best.pose,),
-        chunk=s.chunk,
-        sharding=s.sharding,
-        progress=s.progress,
-        label="project",
-    )
+    poses = _over_poses(s, lambda p: _finish_rows_jit(s.body, p, keep), best.pose, "project")
     return eqx.tree_at(lambda b: b.pose, best, poses)
+
+
+def _over_poses(s: _Setup, fn, poses: Pose, label: str):
+    """fn over the rows' poses, in the setup's chunks and sharding."""
+    return map_chunks(
+        fn, (poses,), chunk=s.chunk, sharding=s.sharding, progress=s.progress, label=label
+    )
 
 
 def _merge(best: Attempt, rows: np.ndarray, new: Attempt) -> Attempt:
@@ -416,16 +416,8 @@ def _batch_result(s: _Setup, best: Attempt, steps, beyond) -> ReachResult:
     n_c = 0 if c is None else len(c.kinds)
     violation = np.zeros((len(xyz), n_c))
     if n_c and len(xyz):
-        violation = np.asarray(
-            map_chunks(
-                lambda p: _violations_jit(s.body, p, c),
-                (best.pose,),
-                chunk=s.chunk,
-                sharding=s.sharding,
-                progress=s.progress,
-                label="constraints",
-            )
-        )
+        check = lambda p: _violations_jit(s.body, p, c)  # noqa: E731
+        violation = np.asarray(_over_poses(s, check, best.pose, "constraints"))
     kept = violation <= tol_position
     status = (
         np.asarray(jax.vmap(reach_status)(reached, valid, beyond & valid, kept))
