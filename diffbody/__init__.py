@@ -62,10 +62,14 @@ _FAMILIES = {
     "files": (
         "BodyFileError",
         "MotionFileError",
+        "PoseFileError",
+        "PoseRecord",
         "load_body",
+        "load_pose",
         "load_spine",
         "read_mot",
         "save_body",
+        "save_pose",
         "write_mot",
     ),
     "fitting": (
@@ -184,10 +188,14 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
     from .files import (
         BodyFileError,
         MotionFileError,
+        PoseFileError,
+        PoseRecord,
         load_body,
+        load_pose,
         load_spine,
         read_mot,
         save_body,
+        save_pose,
         write_mot,
     )
     from .fitting import (
@@ -268,6 +276,11 @@ __all__ = [
     "load_body",
     "load_spine",
     "save_body",
+    # Pose files
+    "PoseFileError",
+    "PoseRecord",
+    "load_pose",
+    "save_pose",
     # Kinematics
     "Kinematics",
     "forward",
