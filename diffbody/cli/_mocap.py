@@ -1,5 +1,5 @@
 """The `diffbody mocap` command: scale and register the body on a static marker trial, fit
-every frame of a motion trial, write the fit (.npz), the scaled body and a picture.
+every frame of a motion trial, write the fit (a pose file, .npz), the scaled body and a picture.
 
     diffbody mocap static.trc walk.trc --markerset opensim-gait --out fit.npz --png fit.png
     diffbody mocap static.trc walk.trc --markerset gait2354_Scale_MarkerSet.xml \
@@ -51,9 +51,10 @@ def add_mocap_command(sub) -> None:
     )
     p.add_argument(
         "--axes",
-        default="opensim",
+        default=None,
         help="the lab's axes in the files: opensim (Y up, X forward, Z right) or z-up "
-        "(X forward, Y left, Z up)",
+        "(X forward, Y left, Z up); default: each file's own, opensim for .trc, and for "
+        ".c3d its POINT:X_SCREEN/Y_SCREEN parameters, z-up where it has none",
     )
     p.add_argument(
         "--no-prior",
@@ -69,7 +70,7 @@ def add_mocap_command(sub) -> None:
         metavar=("T0", "T1"),
         help="fit only the frames with T0 <= time <= T1 (s)",
     )
-    p.add_argument("--out", default="fit.npz", help="fit to write (.npz, default fit.npz)")
+    p.add_argument("--out", default="fit.npz", help="the fit's pose file (.npz, default fit.npz)")
     p.add_argument("--png", default=None, help="PNG of a few fitted frames with their markers")
     p.add_argument(
         "--mot", default=None, help="ISB joint angles of every frame, degrees (OpenSim .mot)"
@@ -78,10 +79,11 @@ def add_mocap_command(sub) -> None:
     p.set_defaults(run=_mocap)
 
 
-def _axes(text: str):
+def _axes(text: str | None):
+    """The lab axes named by --axes; None (not given) lets each file say its own."""
     from ..fitting._marker_trial import LAB_AXES
 
-    if text not in LAB_AXES:
+    if text is not None and text not in LAB_AXES:
         raise ValueError(f"--axes {text}: unknown lab axes; use one of {', '.join(LAB_AXES)}")
     return text
 
@@ -112,6 +114,7 @@ def _mocap(args) -> int:
     import jax
 
     from ..anthropometry._scaling import SCALE_GROUPS
+    from ..files._pose_file import save_pose
     from ..files._saving import save_body
     from ..fitting._markers import read_markers
     from ..fitting._markerset import match_markers
@@ -174,31 +177,29 @@ def _mocap(args) -> int:
     scaled = dataclasses.replace(static_fit.body, name=f"{body.name}-mocap")
     out_path = Path(args.out)
     body_path = save_body(scaled, out_path.with_name(f"{out_path.stem}.body.json"))
-    poses = out.poses
-    spine = poses.spine_target
     per_marker = out.per_marker()
-    np.savez(
+    save_pose(
         out_path,
-        times=np.asarray(out.times),
-        angles=np.asarray(poses.angles),  # (n_frames, n_seg, 3) theta, phi, tau in rad
-        position=np.asarray(poses.position),  # (n_frames, 3) m, the root joint
-        spine_target=np.full((len(out.times), 3), np.nan) if spine is None else np.asarray(spine),
-        segment_names=np.asarray(body.segment_names),
-        marker_names=np.asarray(out.names),
-        marker_kinds=np.asarray(out.kinds),
-        model_markers=np.asarray(out.markers),  # (n_frames, n_markers, 3) m, world
-        measured_markers=np.asarray(trial.positions),
-        errors=np.asarray(out.errors),  # (n_frames, n_markers) m, NaN where missing
-        outliers=np.asarray(out.outliers),  # (n_frames, n_markers) beyond the robust scale
-        rms=np.asarray(out.rms),
-        max=np.asarray(out.max),
-        status=np.asarray(out.status),
-        marker_rms=np.asarray([per_marker[n][0] for n in out.names]),
-        marker_max=np.asarray([per_marker[n][1] for n in out.names]),
-        scale_groups=np.asarray(SCALE_GROUPS),
-        axial=np.asarray(static_fit.axial),
-        static_marker_names=np.asarray(static_fit.markerset.names),
-        static_errors=np.asarray(static_fit.errors),
+        scaled,
+        out.poses,
+        times=out.times,
+        status=[FitStatus(int(s)).name.lower() for s in np.asarray(out.status)],
+        residuals={
+            "rms": out.rms,  # (n_frames,) m over the markers
+            "max": out.max,
+            "errors": out.errors,  # (n_frames, n_markers) m, NaN where missing
+            "outliers": out.outliers,  # (n_frames, n_markers) beyond the robust scale
+        },
+        scale={"groups": list(SCALE_GROUPS), "axial": static_fit.axial},
+        overlays={"markers": {"names": list(out.names), "positions": trial.positions}},
+        extra={
+            "marker_kinds": list(out.kinds),
+            "model_markers": out.markers,  # (n_frames, n_markers, 3) m, world
+            "marker_rms": [per_marker[n][0] for n in out.names],
+            "marker_max": [per_marker[n][1] for n in out.names],
+            "static_marker_names": list(static_fit.markerset.names),
+            "static_errors": static_fit.errors,
+        },
     )
 
     rms = np.asarray(out.rms)
@@ -249,8 +250,9 @@ def _mocap(args) -> int:
         from ..fitting._trc import write_trc
 
         model = MarkerTrial(out.names, out.times, out.markers, trial.rate, args.trc)
-        write_trc(args.trc, model, axes=axes)
-        print(f"wrote {args.trc} (the model's markers, lab axes {axes})")
+        trc_axes = axes or "opensim"  # a TRC file is Y up unless --axes says otherwise
+        write_trc(args.trc, model, axes=trc_axes)
+        print(f"wrote {args.trc} (the model's markers, lab axes {trc_axes})")
     if args.png:
         picture(scaled, out, trial.positions, args.png, os.path.basename(args.motion))
         print(f"wrote {args.png}")

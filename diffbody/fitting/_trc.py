@@ -9,6 +9,10 @@ rows follow. An empty cell, a ``nan``, or a row shorter than the header is a gap
 Every error is a `MarkerFileError` naming the file, the line and the column (1-based, in TRC
 cells: column 1 is ``Frame#``) and the fix. Units are converted on the decimal text, so
 `write_trc` then `read_trc` gives back every float exactly.
+
+Labels may carry a subject prefix, as Vicon Nexus writes them (``Subject01:LASI``): the
+readers keep the part after the last ``:`` (`marker_labels`), so one marker set serves every
+subject; ``strip_prefix=False`` keeps the labels whole.
 """
 
 import math
@@ -66,19 +70,64 @@ def _number(path: str, line: int, col: int, cell: str, what: str, exponent: int 
     )
 
 
-def read_trc(path, axes="opensim", zero_is_gap: bool = True) -> MarkerTrial:
+def marker_labels(labels, strip_prefix: bool, shown: str, where: str) -> tuple[str, ...]:
+    """A file's marker labels, each without its subject prefix (the part up to the last
+    ``:``; a label with nothing after its last ``:`` is kept whole) unless `strip_prefix` is
+    False.
+
+    Args:
+        labels: the labels as the file gives them (surrounding spaces already removed).
+        strip_prefix: drop the prefixes.
+        shown: the file, for the errors.
+        where: where the file holds the labels ("line 4", "parameter POINT:LABELS").
+
+    Raises:
+        MarkerFileError: a label given twice, or two labels that become one once stripped
+            (two subjects in one file), named with the fix.
+    """
+    labels = tuple(labels)
+    twice = sorted({n for n in labels if labels.count(n) > 1})
+    if twice:
+        raise MarkerFileError(
+            f"{shown}: {where}: marker names given twice: {', '.join(twice)}; rename one of each"
+        )
+    if not strip_prefix:
+        return labels
+    stripped = tuple(n.rpartition(":")[2] or n for n in labels)
+    clashes = {}
+    for label, name in zip(labels, stripped):
+        clashes.setdefault(name, []).append(label)
+    clashes = {name: group for name, group in clashes.items() if len(group) > 1}
+    if clashes:
+        shown_clashes = "; ".join(
+            f"{' and '.join(repr(g) for g in group)} are both {name!r}"
+            for name, group in sorted(clashes.items())
+        )
+        raise MarkerFileError(
+            f"{shown}: {where}: {shown_clashes} once the 'Subject:' prefixes are stripped "
+            "(two subjects in one file?); read it with strip_prefix=False to keep the "
+            "prefixes, then select one subject's markers (MarkerTrial.select) and rename them"
+        )
+    return stripped
+
+
+def read_trc(
+    path, axes="opensim", zero_is_gap: bool = True, *, strip_prefix: bool = True
+) -> MarkerTrial:
     """Read a TRC marker file (module docstring) into the world frame, in metres.
 
     Args:
         path: the .trc file.
-        axes: the lab frame, a name of `LAB_AXES` or a (3, 3) rotation R_world_lab.
+        axes: the lab frame, a name of `LAB_AXES` or a (3, 3) rotation R_world_lab; None is
+            OpenSim's (Y up), the frame TRC files are written in.
         zero_is_gap: a marker at exactly (0, 0, 0) is a gap, as many exporters write one
             (`zeros_as_gaps`); False keeps it as a measurement.
+        strip_prefix: drop a ``Subject:`` prefix from every label (`marker_labels`).
 
     Returns:
         `MarkerTrial`; missing markers are NaN.
     """
-    R = lab_rotation(axes)
+    R = lab_rotation("opensim" if axes is None else axes)
     shown = str(path)
     try:
         text = Path(path).read_text(encoding="utf-8")
@@ -150,9 +199,7 @@ def read_trc(path, axes="opensim", zero_is_gap: bool = True) -> MarkerTrial:
             f"{len(names)} marker names, but NumMarkers (line 3, column "
             f"{header['NumMarkers'][0]}) says {n_markers}; make them agree",
         )
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise fail(4, f"marker names given twice: {', '.join(twice)}; rename one of each")
+    names = marker_labels(names, strip_prefix, shown, "line 4")
     n_cells = 2 + 3 * n_markers
     xyz = [c for c in _cells(lines[4]) if c]
     if len(xyz) != 3 * n_markers:
