@@ -6,6 +6,7 @@ import sys
 
 from ._args import CACHE_HELP, keep_compiled
 from ._batch import add_batch_command
+from ._export import add_export_command
 from ._fit import add_fit_command
 from ._mocap import add_mocap_command
 from ._reach import add_reach_command
@@ -35,6 +36,7 @@ def main(argv: list[str] | None = None) -> int:
         add_fit_command,
         add_mocap_command,
         add_webb_command,
+        add_export_command,
     ):
         add_command(sub)
 

@@ -2,6 +2,9 @@
 as their joint values."""
 
 from ._mjcf import (
+    SingularJointsWarning as SingularJointsWarning,
+)
+from ._mjcf import (
     export_mjcf as export_mjcf,
 )
 from ._mjcf import (
@@ -9,6 +12,9 @@ from ._mjcf import (
 )
 from ._mjcf import (
     mujoco_qpos as mujoco_qpos,
+)
+from ._mjcf import (
+    mujoco_qpos_slices as mujoco_qpos_slices,
 )
 from ._urdf import (
     export_urdf as export_urdf,

@@ -1,33 +1,47 @@
 """MuJoCo MJCF export: a body as an MJCF model (`export_mjcf`) and a pose as its qpos
-(`mujoco_qpos`, `mujoco_joint_names`). The rigid-link conventions, and what they cannot say
-of a diffbody body, are in `_rigid_links`.
+(`mujoco_qpos`, `mujoco_joint_names`, `mujoco_qpos_slices`). The rigid-link conventions, and
+what they cannot say of a diffbody body, are in `_rigid_links`; the ball joints' ranges come
+from `_limit_sets`.
 """
 
-import math
 import os
+import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .._body import Body, Pose
+from ._limit_sets import ball_ranges
 from ._rigid_links import (
     HINGE_AXES,
     HINGES,
     SPHERE_RGBA,
     Geometry,
+    batch_poses,
     joint_values_batch,
+    quat_wxyz,
+    rest_relative_rotations,
+    socket_rotations_batch,
     write_xml,
     xml_numbers,
 )
 
-SLIDE_AXES = ("x", "y", "z")  # MJCF: whole_body_x, whole_body_y, whole_body_z
+JOINTS = ("ball", "hinges")  # export_mjcf's joint models
+SLIDE_AXES = ("x", "y", "z")  # hinge model: whole_body_x, whole_body_y, whole_body_z
 ARMATURE = 1e-3  # kg m^2, MJCF joints: keeps MuJoCo's mass matrix regular at the poles
 SITE_RGBA = (0.8, 0.1, 0.1, 1.0)
 SITE_SIZE = 0.005  # m
+
+
+class SingularJointsWarning(UserWarning):
+    """The ZYZ hinge model is singular in the standard position (phi = 0 or pi)."""
+
+
+def _check_joints(name: str, joints: str) -> None:
+    if joints not in JOINTS:
+        raise ValueError(f"{name}: joints must be one of {JOINTS}, got {joints!r}")
 
 
 def _depth_first(body: Body) -> list[int]:
@@ -41,75 +55,81 @@ def _depth_first(body: Body) -> list[int]:
     return order
 
 
-def mujoco_joint_names(body: Body) -> tuple[str, ...]:
-    """Names of the joints of `export_mjcf`'s file in qpos order (one qpos entry each):
-    whole_body_x, _y, _z, then {seg}_theta, {seg}_phi, {seg}_twist for the segments in
-    depth-first order (the nesting of the file's bodies), starting with whole_body."""
-    names = [f"{body.segment_names[0]}_{ax}" for ax in SLIDE_AXES]
-    for i in _depth_first(body):
-        names += [f"{body.segment_names[i]}_{hinge}" for hinge in HINGES]
-    return tuple(names)
+def _joint_sizes(body: Body, joints: str) -> list[tuple[str, int]]:
+    """(joint name, qpos entries) in MuJoCo's order for the joint model `joints`."""
+    seg = body.segment_names
+    if joints == "hinges":
+        out = [(f"{seg[0]}_{ax}", 1) for ax in SLIDE_AXES]
+        return out + [(f"{seg[i]}_{h}", 1) for i in _depth_first(body) for h in HINGES]
+    return [(f"{seg[0]}_free", 7)] + [(f"{seg[i]}_ball", 4) for i in _depth_first(body)[1:]]
 
 
-def mujoco_qpos(body: Body, pose: Pose) -> np.ndarray:
-    """MuJoCo `qpos` of a pose, in the joint order of `export_mjcf`'s file.
+def mujoco_joint_names(body: Body, joints: str = "ball") -> tuple[str, ...]:
+    """Names of the joints of `export_mjcf`'s file, in MuJoCo's order (the nesting of the
+    file's bodies: segments depth first, starting with whole_body).
 
-    qpos = (x, y, z of the whole body's proximal joint, then for every segment: theta, phi,
-    s(theta, phi) + tau), s the standard twist, so that MuJoCo's Rz(theta) Ry(phi) Rz(twist)
-    is diffbody's segment frame; angles as given, not wrapped (the hinges are unlimited).
-    MuJoCo orders joints as the file nests its bodies, so the segments come depth first
-    (whole_body, pelvis, L5, L4, ..., then the legs), not in `body.segment_names` order:
-    `mujoco_joint_names` names every entry. For a body with its default root the position
-    is `pose.position`; for a re-rooted body (`Body.with_root`) the whole body's position
-    and hinges are its proximal joint and twisted frame in `forward`. For a pose with a
-    spine target, the segments the spine moves get the ZYZ angles of their frames in
-    `forward` (their pose rows are not used). Computed with JAX (float64 if x64 is on),
-    returned as NumPy.
+    joints="ball": `whole_body_free` (7 qpos entries), then `{seg}_ball` (4 each).
+    joints="hinges": `whole_body_x`, `_y`, `_z`, then `{seg}_theta`, `{seg}_phi`,
+    `{seg}_twist` for every segment, whole_body first (1 each). `mujoco_qpos_slices` gives
+    each joint's entries of qpos."""
+    _check_joints("mujoco_joint_names", joints)
+    return tuple(name for name, _ in _joint_sizes(body, joints))
+
+
+def mujoco_qpos_slices(body: Body, joints: str = "ball") -> dict[str, slice]:
+    """{joint name: its slice of qpos} for `export_mjcf`'s file, in MuJoCo's joint order
+    (MuJoCo's `model.jnt_qposadr`): a ball takes 4 entries (w, x, y, z), the free joint 7
+    (x, y, z, then w, x, y, z), a hinge or slide 1."""
+    _check_joints("mujoco_qpos_slices", joints)
+    out, start = {}, 0
+    for name, size in _joint_sizes(body, joints):
+        out[name] = slice(start, start + size)
+        start += size
+    return out
+
+
+def mujoco_qpos(body: Body, pose: Pose, joints: str = "ball") -> np.ndarray:
+    """MuJoCo `qpos` of a pose, in the joint order of `export_mjcf`'s file (same `joints`).
+
+    joints="ball": the whole body's proximal joint (x, y, z, m) and its twisted frame in the
+    world as a quaternion (w, x, y, z), then per segment (depth first,
+    `mujoco_joint_names`) the quaternion of Q = R_rest^T R_socket_twisted, its rotation
+    from the standard position (R_rest = `body.R_socket_rest`): the identity quaternion at
+    rest, and no gimbal lock anywhere. Quaternions have w >= 0.
+
+    joints="hinges": (x, y, z of the whole body's proximal joint, then for every segment:
+    theta, phi, s(theta, phi) + tau), s the standard twist, so that MuJoCo's Rz(theta)
+    Ry(phi) Rz(twist) is diffbody's segment frame; angles as given, not wrapped (the hinges
+    are unlimited). Rows the pose sets keep its theta and phi.
+
+    Both: for a body with its default root the position is `pose.position`; for a re-rooted
+    body (`Body.with_root`) the whole body's position and frame are its proximal joint and
+    twisted frame in `forward`. For a pose with a spine target, the segments the spine
+    moves take their frames in `forward` (their pose rows are not used). Computed with JAX
+    (float64 if x64 is on), returned as NumPy.
 
     Args:
         body: the body the file was exported from.
         pose: a `Pose`; its arrays may carry the same leading batch axes, e.g. angles
             (..., n_seg, 3) with position (..., 3).
+        joints: "ball" or "hinges", as given to `export_mjcf`.
 
     Returns:
-        array (..., 3 + 3 n_seg): nq of the exported model, MuJoCo's joint order.
+        array (..., nq): nq = 7 + 4 (n_seg - 1) for balls, 3 + 3 n_seg for hinges.
     """
-    angles = jnp.asarray(pose.angles)
-    batch = angles.shape[:-2]
-    position = jnp.asarray(pose.position)
-    if angles.shape[-2:] != (body.n_segments, 3) or position.shape != batch + (3,):
-        raise ValueError(
-            f"mujoco_qpos: expected angles (..., {body.n_segments}, 3) and position (..., 3) "
-            f"with the same leading axes, got {angles.shape} and {position.shape}"
-        )
-    flat = jax.tree.map(lambda x: jnp.reshape(x, (-1, *jnp.shape(x)[len(batch) :])), pose)
-    position, hinges = joint_values_batch(body, flat)
-    hinges = np.asarray(hinges)[:, np.asarray(_depth_first(body))]
-    q = np.concatenate([np.asarray(position), hinges.reshape(len(hinges), -1)], axis=-1)
-    return q.reshape(batch + (q.shape[-1],))
-
-
-def _quat(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) of a rotation matrix (Shepperd's method)."""
-    t = np.trace(R)
-    k = int(np.argmax([t, R[0, 0], R[1, 1], R[2, 2]]))
-    if k == 0:
-        w = math.sqrt(1.0 + t) / 2.0
-        q = [
-            w,
-            (R[2, 1] - R[1, 2]) / (4 * w),
-            (R[0, 2] - R[2, 0]) / (4 * w),
-            (R[1, 0] - R[0, 1]) / (4 * w),
-        ]
+    _check_joints("mujoco_qpos", joints)
+    batch, flat = batch_poses("mujoco_qpos", body, pose)
+    order = np.asarray(_depth_first(body))
+    if joints == "hinges":
+        position, hinges = joint_values_batch(body, flat)
+        hinges = np.asarray(hinges)[:, order]
+        q = np.concatenate([np.asarray(position), hinges.reshape(len(hinges), -1)], axis=-1)
     else:
-        i, j, m = k - 1, k % 3, (k + 1) % 3
-        v = [0.0, 0.0, 0.0]
-        v[i] = math.sqrt(max(1.0 + 2 * R[i, i] - t, 0.0)) / 2.0
-        v[j] = (R[j, i] + R[i, j]) / (4 * v[i])
-        v[m] = (R[m, i] + R[i, m]) / (4 * v[i])
-        q = [(R[m, j] - R[j, m]) / (4 * v[i]), *v]
-    q = np.asarray(q)
-    return q / np.linalg.norm(q) * (1.0 if q[0] >= 0 else -1.0)
+        position, R_world_whole, R_socket_twisted = socket_rotations_batch(body, flat)
+        Q = rest_relative_rotations(body, R_socket_twisted)[:, order[1:]]
+        balls = quat_wxyz(Q).reshape(len(Q), -1)
+        q = np.concatenate([np.asarray(position), quat_wxyz(R_world_whole), balls], axis=-1)
+    return q.reshape(batch + (q.shape[-1],))
 
 
 def _excluded_pairs(body: Body, exclude: Iterable[tuple[str, str]]) -> list[tuple[int, int]]:
@@ -126,33 +146,63 @@ def _excluded_pairs(body: Body, exclude: Iterable[tuple[str, str]]) -> list[tupl
     return sorted(out)
 
 
+def _keyframes(body: Body, pose: Pose | None, joints: str) -> list[tuple[str, np.ndarray]]:
+    """(name, qpos) of the file's keyframes: the pose ("pose", or "pose_{k}" per row of a
+    pose with one leading axis) first, then "standard_position"."""
+    keys = []
+    if pose is not None:
+        q = mujoco_qpos(body, pose, joints)
+        if q.ndim == 1:
+            keys.append(("pose", q))
+        elif q.ndim == 2:
+            keys += [(f"pose_{k}", row) for k, row in enumerate(q)]
+        else:
+            raise ValueError(f"export_mjcf: pose has {q.ndim - 1} leading axes; at most one")
+    return keys + [("standard_position", mujoco_qpos(body, body.rest_pose(), joints))]
+
+
 def export_mjcf(
-    body: Body, path: str | os.PathLike, exclude: Iterable[tuple[str, str]] | None = None
+    body: Body,
+    path: str | os.PathLike,
+    exclude: Iterable[tuple[str, str]] | None = None,
+    *,
+    joints: str = "ball",
+    pose: Pose | None = None,
 ) -> Path:
     """Write the body as a MuJoCo MJCF model (docs/design.md, section 2 as rigid links:
-    `_rigid_links`, whose hinges and caveats apply).
+    `_rigid_links`, whose caveats apply).
 
     The file, and what it holds:
 
-    - One `<body>` per segment, named after it, nested as the segment tree, at the segment's
-      *socket* frame: pos = (0, 0, L_parent) in the parent's twisted frame, quat =
-      R_parent_socket (the whole body hangs from the world at the origin).
-    - Joints, in `mujoco_qpos` order: the whole body's slides `whole_body_x`, `_y`, `_z`
-      along the world axes, then every segment's hinges `{seg}_theta` (z), `{seg}_phi` (y),
-      `{seg}_twist` (z), unlimited: each body's `xpos` is the segment's proximal joint and
-      its `xmat` `forward(...).R_world_twisted`.
+    - One `<body>` per segment, named after it, nested as the segment tree, hanging from
+      its parent's twisted frame at (0, 0, L_parent). Each body's `xpos` is the segment's
+      proximal joint and its `xmat` `forward(...).R_world_twisted`.
+    - joints="ball" (the default): the whole body has a free joint `whole_body_free` and
+      every other segment a ball `{seg}_ball`, its zero the segment's standard-position
+      frame (the body's quat is R_parent_socket R_socket_rest), so qpos0 is the standard
+      position and no pose is a gimbal lock. Each ball is limited to the largest rotation
+      from rest its limits allow (`_limit_sets.ball_ranges`: the limit set sampled, radians,
+      an outer bound; unlimited for "free" limits). The exact shape of the limits (a box and
+      a cone of swing vectors, a twist range) is more than MuJoCo can state: check poses
+      with `within_limits`.
+    - joints="hinges" (warns: `SingularJointsWarning`): the former model, three slides
+      `whole_body_x`, `_y`, `_z` along the world axes, then every segment's hinges
+      `{seg}_theta` (z), `{seg}_phi` (y), `{seg}_twist` (z), unlimited, each body at its
+      socket frame. theta and twist share an axis where phi = 0 or pi: every hanging limb
+      and the spine in the standard position.
     - Surface spheres as `<geom type="sphere">` named `{seg}_sphere_{k}` (k the index in
       `body.sphere_*`) and `<site>`s for the features (`body.feature_names`), in the twisted
       frame; a `<site>` at each segment's distal joint, named after it ("left_wrist"), exact
       in every pose (the center of gravity has none: MuJoCo's `subtree_com` gives it).
-    - `<inertial>` at the centroid with the segment's mass (`TINY_MASS` when massless, so the
-      model's total mass exceeds the body's by that).
+    - `<inertial>` at the centroid with the segment's mass and `fullinertia` the tensor of
+      its spheres (`_rigid_links.sphere_inertia`; `TINY_MASS` and `TINY_INERTIA` when
+      massless, so the model's total mass exceeds the body's by that).
     - `<contact><exclude>` for segment pairs whose spheres overlap in the standard position,
       beyond MuJoCo's parent-child filter, so a simulation does not start in self-contact;
       or, when `exclude` is given, for exactly those segment pairs (MuJoCo's parent-child
       filter still applies).
-    - A keyframe "standard_position" = `mujoco_qpos(body, body.rest_pose())`; qpos = 0 is
-      every segment along its socket's Z, not a human posture.
+    - Keyframes: `pose`, when given, first (key 0, `mj_resetDataKeyframe(model, data, 0)`),
+      then "standard_position" = `mujoco_qpos(body, body.rest_pose(), joints)`.
 
     Args:
         body: the body (its arrays are written as float64, to the last digit).
@@ -161,11 +211,27 @@ def export_mjcf(
             default (the pairs overlapping in the standard position); e.g. the pairs that
             `diffbody.contact` never checks, so that MuJoCo collides the pairs it checks (they
             include every parent and child: MuJoCo's parent filter drops no other pair).
+        joints: "ball" or "hinges".
+        pose: an initial configuration, written as keyframe "pose"; with one leading axis
+            (a sequence), one keyframe "pose_{k}" per row.
 
     Returns:
         The path written.
     """
+    _check_joints("export_mjcf", joints)
+    balls = joints == "ball"
+    if not balls:
+        warnings.warn(
+            "export_mjcf(joints='hinges'): the ZYZ hinges theta, phi, twist are singular at "
+            "phi = 0 or pi, where hanging limbs and the spine rest in the standard position "
+            "(theta and twist turn about one axis there); joints='ball' has no singularity",
+            SingularJointsWarning,
+            stacklevel=2,
+        )
     g = Geometry(body)
+    ranges = ball_ranges(body) if balls else None
+    keys = _keyframes(body, pose, joints)
+    R_rest = np.asarray(body.R_socket_rest, np.float64)
     root = ET.Element("mujoco", model=body.name)
     ET.SubElement(root, "compiler", angle="radian")
     default = ET.SubElement(root, "default")
@@ -178,27 +244,42 @@ def export_mjcf(
         p = g.parent[i]
         up = world if p < 0 else elements[p]
         R = g.R_parent_socket[i]
+        # The body frame at qpos0: the socket (hinges: their zero is the socket's axes) or
+        # the standard position (balls and the free joint: their zero is rest).
+        pos, R_up_body = g.socket_offset(i), R @ R_rest[i] if balls else R
+        if balls and p < 0:
+            pos = g.rest_origin
         el = ET.SubElement(
-            up, "body", name=name, pos=xml_numbers(*g.socket_offset(i)), quat=xml_numbers(*_quat(R))
+            up, "body", name=name, pos=xml_numbers(*pos), quat=xml_numbers(*quat_wxyz(R_up_body))
         )
         elements.append(el)
+        inertia = g.inertia[i]
         ET.SubElement(
             el,
             "inertial",
             pos=xml_numbers(*g.centroids[i]),
             mass=xml_numbers(g.link_masses[i]),
-            diaginertia=xml_numbers(*[g.inertia[i]] * 3),
+            fullinertia=xml_numbers(*inertia[[0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]),
         )
-        if p < 0:
-            # Slide axes in the body frame that are the world axes: rows of R_parent_socket.
-            for k, ax in enumerate(SLIDE_AXES):
+        if balls and p < 0:
+            ET.SubElement(el, "joint", name=f"{name}_free", type="free")
+        elif balls:
+            limit = {"limited": "false"}
+            if np.isfinite(ranges[i]):
+                limit = {"limited": "true", "range": xml_numbers(0.0, ranges[i])}
+            ET.SubElement(el, "joint", name=f"{name}_ball", type="ball", **limit)
+        else:
+            if p < 0:
+                # Slide axes in the body frame that are the world axes: rows of
+                # R_parent_socket.
+                for k, ax in enumerate(SLIDE_AXES):
+                    ET.SubElement(
+                        el, "joint", name=f"{name}_{ax}", type="slide", axis=xml_numbers(*R[k])
+                    )
+            for hinge, axis in zip(HINGES, HINGE_AXES):
                 ET.SubElement(
-                    el, "joint", name=f"{name}_{ax}", type="slide", axis=xml_numbers(*R[k])
+                    el, "joint", name=f"{name}_{hinge}", type="hinge", axis=xml_numbers(*axis)
                 )
-        for hinge, axis in zip(HINGES, HINGE_AXES):
-            ET.SubElement(
-                el, "joint", name=f"{name}_{hinge}", type="hinge", axis=xml_numbers(*axis)
-            )
         for k, origin, radius in g.spheres[i]:
             ET.SubElement(
                 el,
@@ -217,17 +298,19 @@ def export_mjcf(
     for a, b in pairs:
         ET.SubElement(contact, "exclude", body1=g.names[a], body2=g.names[b])
     keyframe = ET.SubElement(root, "keyframe")
-    ET.SubElement(
-        keyframe,
-        "key",
-        name="standard_position",
-        qpos=xml_numbers(*mujoco_qpos(body, body.rest_pose())),
+    for key, qpos in keys:
+        ET.SubElement(keyframe, "key", name=key, qpos=xml_numbers(*qpos))
+    what = (
+        "a free joint, then per segment a ball about its standard-position frame, limited to "
+        "the largest rotation its limits allow (check poses with diffbody's within_limits)"
+        if balls
+        else "hinges theta (z), phi (y), twist (z) give Rz(theta) Ry(phi) Rz(s + tau), "
+        "singular at phi = 0 and pi"
     )
     return write_xml(
         root,
         path,
         f" {body.name} ({Path(body.source).name}), exported by diffbody. Each body is a "
-        "segment's socket frame; hinges theta (z), phi (y), twist (z) give "
-        "Rz(theta) Ry(phi) Rz(s + tau). Spheres and sites are in the twisted frame: they "
-        "turn with the full twist. Set qpos with diffbody's mujoco_qpos. ",
+        f"segment's twisted frame; joints: {what}. Spheres and sites turn with the full "
+        "twist. Set qpos with diffbody's mujoco_qpos. ",
     )

@@ -1,18 +1,23 @@
-"""A body as rigid links joined by hinges (docs/design.md, section 1): what the MuJoCo MJCF
-(`_mjcf`) and URDF (`_urdf`) exporters share, a pose's hinge values (rad) and the links'
-geometry (float64 NumPy: m, kg).
+"""A body as rigid links (docs/design.md, section 1): what the MuJoCo MJCF (`_mjcf`) and
+URDF (`_urdf`) exporters share, a pose's joint values (rad) and the links' geometry (float64
+NumPy: m, kg).
 
-Each segment becomes three hinges: `{seg}_theta` about the socket's Z, `{seg}_phi` about the
-turned Y, `{seg}_twist` about the segment's own Z with value s(theta, phi) + tau (s the
-standard-orientation twist), so R_socket_twisted = Rz(theta) Ry(phi) Rz(s + tau) and the frame
-after them is `forward`'s twisted frame at the proximal joint: joints and frames match
-`forward` exactly. What a rigid link cannot say: spheres, sites and inertials turn with the
-full twist (exact where tau = 0 and at the distal end); the limits, in swing space, are no box
-in (theta, phi, twist); the inertia is a uniform solid sphere's of the enclosure radius, and
-massless links get `TINY_MASS` and `TINY_INERTIA`.
+Every segment is a rigid link whose frame is `forward`'s twisted frame at its proximal joint,
+hanging from its socket: (0, 0, L_parent) in its parent's link, turned by R_parent_socket.
+Its rotation in the socket (`socket_rotations_batch`) is what the joints set: a ball, three
+hinges whose singularity lies outside the limits (`_limit_sets`), or, as before, the ZYZ
+hinges `{seg}_theta` about the socket's Z, `{seg}_phi` about the turned Y, `{seg}_twist`
+about the segment's own Z with value s(theta, phi) + tau (s the standard-orientation twist),
+so R_socket_twisted = Rz(theta) Ry(phi) Rz(s + tau) (`joint_values_batch`; singular at
+phi = 0 and pi, where hanging limbs rest). Joints and frames match `forward` exactly.
+
+What a rigid link cannot say: spheres, sites and inertials turn with the full twist (exact
+where tau = 0 and at the distal end). The inertia (`sphere_inertia`) is that of the
+segment's surface spheres, massless links get `TINY_MASS` and `TINY_INERTIA`.
 """
 
 import os
+import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -20,6 +25,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .._body import PHI, TAU, THETA, Body, Pose, rest_geometry
 from .._kinematics import forward
@@ -80,6 +86,47 @@ def _joint_values(body: Body, pose: Pose) -> tuple[jax.Array, jax.Array]:
     return fk.joint_positions[body.proximal_joint[0]], hinges
 
 
+def _socket_rotations(body: Body, pose: Pose) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The whole body's proximal joint (3,) (m) and twisted frame in the world (3, 3), and
+    every segment's twisted frame in its socket (n_seg, 3, 3), from `forward` (so a re-rooted
+    body or a spine target is placed as `forward` places it)."""
+    fk = forward(body, pose)
+    up = np.where(np.asarray(body.parent) < 0, body.n_segments, body.parent)
+    world = jnp.eye(3, dtype=fk.R_world_twisted.dtype)[None]  # the whole body's parent
+    R_world_socket = jnp.concatenate([fk.R_world_twisted, world])[up] @ body.R_parent_socket
+    R_socket_twisted = jnp.swapaxes(R_world_socket, -1, -2) @ fk.R_world_twisted
+    return fk.joint_positions[body.proximal_joint[0]], fk.R_world_twisted[0], R_socket_twisted
+
+
+@eqx.filter_jit
+def socket_rotations_batch(body: Body, poses: Pose) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """`_socket_rotations` of poses with one leading batch axis: (k, 3), (k, 3, 3) and
+    (k, n_seg, 3, 3)."""
+    return jax.vmap(lambda pose: _socket_rotations(body, pose))(poses)
+
+
+def rest_relative_rotations(body: Body, R_socket_twisted: np.ndarray) -> np.ndarray:
+    """(..., n_seg, 3, 3) each segment's rotation from its rest frame,
+    Q = R_socket_rest^T R_socket_twisted: the identity in the standard position."""
+    R_rest = np.asarray(body.R_socket_rest, np.float64)
+    return np.swapaxes(R_rest, -1, -2) @ np.asarray(R_socket_twisted, np.float64)
+
+
+def batch_poses(name: str, body: Body, pose: Pose) -> tuple[tuple[int, ...], Pose]:
+    """A pose with any leading axes as (those axes, the pose with one flat batch axis),
+    its shapes checked (`name` is the caller, for the message)."""
+    angles = jnp.asarray(pose.angles)
+    batch = angles.shape[:-2]
+    position = jnp.asarray(pose.position)
+    if angles.shape[-2:] != (body.n_segments, 3) or position.shape != batch + (3,):
+        raise ValueError(
+            f"{name}: expected angles (..., {body.n_segments}, 3) and position (..., 3) "
+            f"with the same leading axes, got {angles.shape} and {position.shape}"
+        )
+    flat = jax.tree.map(lambda x: jnp.reshape(x, (-1, *jnp.shape(x)[len(batch) :])), pose)
+    return batch, flat
+
+
 @eqx.filter_jit
 def joint_values_batch(body: Body, poses: Pose) -> tuple[jax.Array, jax.Array]:
     """`_joint_values` of poses with one leading batch axis (one compile serves both
@@ -100,7 +147,55 @@ def _zyz(M: jax.Array) -> jax.Array:
     return jnp.stack([a, b, jnp.arctan2(r10, r00)])
 
 
+# --- host-side rotations --------------------------------------------------------------------
+def quat_wxyz(R: np.ndarray) -> np.ndarray:
+    """(..., 4) unit quaternions (w, x, y, z), w >= 0 (MuJoCo's order), of rotation matrices
+    (..., 3, 3)."""
+    R = np.asarray(R, np.float64)
+    q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat(canonical=True, scalar_first=True)
+    return q.reshape(R.shape[:-2] + (4,))
+
+
+def rpy(R: np.ndarray) -> tuple[float, float, float]:
+    """URDF's (roll, pitch, yaw) of a rotation matrix, R = Rz(yaw) Ry(pitch) Rx(roll) (fixed
+    axes x, y, z). At gimbal lock (pitch = +-pi/2, e.g. a socket turned by a quarter turn)
+    scipy sets yaw = 0 and the angles still give R."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Gimbal lock detected")
+        roll, pitch, yaw = Rotation.from_matrix(np.asarray(R, np.float64)).as_euler("xyz")
+    return float(roll), float(pitch), float(yaw)
+
+
 # --- link geometry --------------------------------------------------------------------------
+def sphere_inertia(
+    masses: np.ndarray, origins: np.ndarray, radii: np.ndarray, segment: np.ndarray
+) -> np.ndarray:
+    """(n_seg, 3, 3) each segment's inertia tensor (kg m^2) about the centre of mass of its
+    surface spheres, in its cross of axes: every sphere a uniform solid ball holding a share
+    of the segment's mass proportional to its volume (overlaps counted twice), moved to that
+    centre by the parallel-axis theorem,
+
+        I = sum_k m_k (2/5 r_k^2 1 + |d_k|^2 1 - d_k d_k^T),  d_k = o_k - c.
+
+    Zero for a segment without spheres or mass.
+
+    Args:
+        masses: (n_seg,) kg. origins: (n_sph, 3) m, in their segments' cross of axes.
+        radii: (n_sph,) m. segment: (n_sph,) the segment of each sphere.
+    """
+    out = np.zeros((len(masses), 3, 3))
+    for i, mass in enumerate(masses):
+        k = np.flatnonzero(segment == i)
+        if mass <= 0 or k.size == 0:
+            continue
+        volume = radii[k] ** 3
+        m = mass * volume / volume.sum()
+        d = origins[k] - m @ origins[k] / mass
+        moments = 0.4 * radii[k] ** 2 + np.sum(d * d, axis=-1)
+        out[i] = np.einsum("k,ij->ij", m * moments, np.eye(3)) - np.einsum("k,ki,kj->ij", m, d, d)
+    return out
+
+
 def xml_numbers(*values: float | int | np.floating) -> str:
     """Numbers as XML text, each exactly as the float64 it is (shortest round trip)."""
     return " ".join(repr(float(v) + 0.0) for v in values)
@@ -116,14 +211,22 @@ class Geometry:
         self.R_parent_socket = np.asarray(body.R_parent_socket, np.float64)
         self.masses = np.asarray(body.masses, np.float64)
         self.centroids = np.asarray(body.centroids, np.float64)
-        enclosure = np.asarray(body.enclosure_radii, np.float64)
-        r = np.where(enclosure > 0, enclosure, self.lengths / 2)
-        self.inertia = np.where(self.masses > 0, 0.4 * self.masses * r**2, 0.0)
-        self.inertia = np.where(self.inertia > 0, self.inertia, TINY_INERTIA)
         self.link_masses = np.where(self.masses > 0, self.masses, TINY_MASS)
         origins = np.asarray(body.sphere_origins, np.float64)
         radii = np.asarray(body.sphere_radii, np.float64)
         sph_seg = np.asarray(body.sphere_segment, dtype=int)
+        # Inertia tensors (kg m^2) about the centroid, in the twisted frame: the spheres'
+        # (`sphere_inertia`); a segment with mass but no spheres, a solid sphere of its
+        # enclosure radius; massless links, `TINY_INERTIA`. The centre of mass stays the
+        # body's centroid (de Leva's, which `forward`'s center of gravity uses), not the
+        # spheres' own.
+        self.inertia = sphere_inertia(self.masses, origins, radii, sph_seg)
+        enclosure = np.asarray(body.enclosure_radii, np.float64)
+        r = np.where(enclosure > 0, enclosure, self.lengths / 2)
+        for i in range(body.n_segments):
+            if not self.inertia[i].any():
+                moment = 0.4 * self.masses[i] * r[i] ** 2
+                self.inertia[i] = np.eye(3) * (moment if moment > 0 else TINY_INERTIA)
         self.spheres = [
             [(k, origins[k], radii[k]) for k in np.flatnonzero(sph_seg == i)]
             for i in range(body.n_segments)
