@@ -12,6 +12,7 @@ from ._mocap import add_mocap_command
 from ._reach import add_reach_command
 from ._render import add_info_command, add_render_command
 from ._scale import add_scale_command
+from ._view import add_view_command
 from ._webb import add_webb_command
 
 # The commands that solve: those whose compiled functions the persistent cache keeps.
@@ -36,6 +37,7 @@ def main(argv: list[str] | None = None) -> int:
         add_fit_command,
         add_mocap_command,
         add_webb_command,
+        add_view_command,
         add_export_command,
     ):
         add_command(sub)
