@@ -4,6 +4,7 @@ and the error message."""
 import argparse
 import sys
 
+from ._animate import add_animate_command
 from ._args import CACHE_HELP, keep_compiled
 from ._batch import add_batch_command
 from ._export import add_export_command
@@ -39,6 +40,7 @@ def main(argv: list[str] | None = None) -> int:
         add_webb_command,
         add_view_command,
         add_export_command,
+        add_animate_command,
     ):
         add_command(sub)
 
