@@ -8,7 +8,7 @@ import pytest
 
 import diffbody as db
 from diffbody._joint_angles import angle_names, joint_angles
-from diffbody.view import build_scene
+from diffbody.view import build_scene, view
 from diffbody.view._viewer import angle_table
 
 
@@ -87,12 +87,12 @@ def test_angle_table_pairs_the_sides():
 def test_without_viser_the_message_says_what_to_install(male50, monkeypatch):
     monkeypatch.setitem(sys.modules, "viser", None)  # import viser raises ImportError
     with pytest.raises(ImportError, match=r"pip install 'diffbody\[view\]'"):
-        db.view.view(male50, male50.rest_pose())
+        view(male50, male50.rest_pose())
 
 
 def test_served_scene_follows_the_frame(male50, record, scene):
     pytest.importorskip("viser", reason="the viewer needs viser: pip install 'diffbody[view]'")
-    with db.view.view(male50, record, port=0) as viewer:
+    with view(male50, record, port=0) as viewer:
         assert viewer.url.startswith("http://127.0.0.1:") and viewer.n_frames == 5
         assert set(viewer.overlays) == {"markers", "cloud", "targets"}
         for k in (4, 2):
