@@ -32,6 +32,9 @@ from scipy.spatial.transform import Rotation
 from .._body import Body
 from .._kinematics import KINDS, socket_frame_of_kind
 
+# rad, added to every bound: more than `within_limits`' tolerance (256 eps) and the rounding
+# of frames computed through `forward`, so a pose on a limit is within the bound.
+ROUNDING = 1e-9
 SWING_STEP = np.deg2rad(1.0)  # rad, grid spacing of the swing vector for the ball ranges
 HINGE_STEP = np.deg2rad(2.0)  # rad, grid spacing in (w_x, w_y, tau) for the hinge bounds
 ALIGNED_MARGIN = np.deg2rad(10.0)  # rad, least distance to the singularity of aligned hinges
@@ -110,7 +113,7 @@ def ball_ranges(body: Body) -> np.ndarray:
     limits allow (a ball joint's range about the rest frame); inf for "free" segments.
 
     The largest of the sampled angles (module docstring), widened by their largest change
-    between neighbouring samples and capped at pi."""
+    between neighbouring samples and `ROUNDING`, capped at pi."""
     out = np.full(body.n_segments, np.inf)
     for i, kind in enumerate(body.limit_kind):
         if kind == "free":
@@ -119,7 +122,7 @@ def ball_ranges(body: Body) -> np.ndarray:
             _rest_relative_swings(body, i, _swing_grid(body, i, SWING_STEP)),
             *_twist_range(body, i),
         )
-        out[i] = min(np.pi, float(angle.max()) + _neighbour_change(angle))
+        out[i] = min(np.pi, float(angle.max()) + _neighbour_change(angle) + ROUNDING)
     return out
 
 
@@ -155,8 +158,9 @@ def hinge_values(axes: np.ndarray, Q: np.ndarray) -> np.ndarray:
 
 def _bounds(values: np.ndarray) -> tuple[float, float]:
     """Bounds of one hinge's gridded values: the sampled extremes widened by their largest
-    neighbour change; [-pi, pi] when the values wrap around (a jump of over pi)."""
-    change = _neighbour_change(values)
+    neighbour change and `ROUNDING`; [-pi, pi] when the values wrap around (a jump of over
+    pi)."""
+    change = _neighbour_change(values) + ROUNDING
     if change > np.pi:
         return -np.pi, np.pi
     return max(-np.pi, float(values.min()) - change), min(np.pi, float(values.max()) + change)

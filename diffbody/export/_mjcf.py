@@ -126,9 +126,10 @@ def mujoco_qpos(body: Body, pose: Pose, joints: str = "ball") -> np.ndarray:
         q = np.concatenate([np.asarray(position), hinges.reshape(len(hinges), -1)], axis=-1)
     else:
         position, R_world_whole, R_socket_twisted = socket_rotations_batch(body, flat)
-        Q = rest_relative_rotations(body, R_socket_twisted)[:, order[1:]]
+        Q = rest_relative_rotations(body, np.asarray(R_socket_twisted))[:, order[1:]]
         balls = quat_wxyz(Q).reshape(len(Q), -1)
-        q = np.concatenate([np.asarray(position), quat_wxyz(R_world_whole), balls], axis=-1)
+        whole = quat_wxyz(np.asarray(R_world_whole))
+        q = np.concatenate([np.asarray(position), whole, balls], axis=-1)
     return q.reshape(batch + (q.shape[-1],))
 
 

