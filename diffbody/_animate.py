@@ -4,15 +4,17 @@ imageio as a video (.mp4, H.264 through imageio-ffmpeg) or an animated GIF (pill
 
 The camera stays where it is for the whole animation and frames the union of all frames
 (a walker crosses the picture). That also makes it fast: `shade` rasterises one sphere at a
-time (about 400 small NumPy calls, 0.2-0.4 s a picture), but with the scale fixed each
+time (about 400 small NumPy calls, 0.15-0.3 s a picture), but with the scale fixed each
 sphere's pixel box has the same size in every frame, so the boxes' pixels are laid out once
-(`Raster`) and a frame is a few whole-array operations on them, with `shade`'s depth test
-and lighting (tests/test_animate.py compares the two pixel for pixel). The forward
-kinematics of all frames is one vmapped, compiled call; one matplotlib figure is drawn again
-for each frame with its image and caption replaced.
+(`Raster`) and a frame is one compiled program over them, with `shade`'s depth test and
+lighting (tests/test_animate.py compares the two pixel for pixel). The forward kinematics
+of all frames is one vmapped, compiled call. One matplotlib figure serves every frame: its
+floor and label are drawn once and kept, and each frame draws only the body's image and
+the caption over them (blitting).
 """
 
 import math
+import warnings
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -192,20 +194,29 @@ def frame_rate(times: np.ndarray | None, n_frames: int) -> float:
     return float((n_frames - 1) / (times[-1] - times[0]))
 
 
-def _writer(path: Path, fps: float):
-    """An imageio writer for `path`'s container: clear messages when a package is missing."""
+def _imageio(path: Path):
+    """imageio's v2 API, once the packages `path`'s container needs are known to be there;
+    an ImportError naming them otherwise."""
     hint = "pip install 'diffbody[view]'"
     try:
         import imageio.v2 as iio
     except ImportError:
         raise ImportError(f"animate: writing {path.name} needs imageio; {hint}") from None
+    if path.suffix == ".mp4":
+        try:
+            import imageio_ffmpeg  # noqa: F401
+        except ImportError:
+            raise ImportError(
+                f"animate: writing {path.name} needs imageio-ffmpeg; {hint}"
+            ) from None
+    return iio
+
+
+def _writer(iio, path: Path, fps: float):
+    """An imageio writer for `path`'s container, frames appended one by one."""
     if path.suffix == ".gif":
         # Pillow keeps the delay in milliseconds, rounded to 10 ms; loop=0 loops forever.
         return iio.get_writer(path, format="GIF", mode="I", duration=1000.0 / fps, loop=0)
-    try:
-        import imageio_ffmpeg  # noqa: F401
-    except ImportError:
-        raise ImportError(f"animate: writing {path.name} needs imageio-ffmpeg; {hint}") from None
     # H.264 in yuv420p, which every player reads: even sides (checked), so ffmpeg need not
     # resize (macro_block_size=1 keeps imageio from doing it either).
     return iio.get_writer(
@@ -233,7 +244,7 @@ def animate(
     path: str | Path,
     *,
     view: View = "perspective",
-    fps: float | None = None,
+    fps: float | int | None = None,
     size: tuple[int, int] = (640, 480),
     times=None,
 ) -> Path:
@@ -270,6 +281,7 @@ def animate(
     path = path.with_suffix(path.suffix.lower())
     w, h = _check_size(size)
     camera(view)  # an unknown view is refused before any work
+    iio = _imageio(path)
     poses, times = _frames(record_or_poses, body, times)
     n = int(poses.angles.shape[0])
     fps = frame_rate(times, n) if fps is None else float(fps)
@@ -288,7 +300,7 @@ def animate(
     reach = radii[None, :, None]
     lo = np.min(np.where(seen[..., None], xy - reach, np.inf), axis=(0, 1))
     hi = np.max(np.where(seen[..., None], xy + reach, -np.inf), axis=(0, 1))
-    side_on = abs(up[2]) > 1.0 - 1e-9  # the floor is the line z = 0 on the screen
+    side_on = bool(abs(up[2]) > 1.0 - 1e-9)  # the floor is the line z = 0 on the screen
     if side_on:
         lo[1] = min(lo[1], -0.05)
     pad = 0.05 * (hi - lo).max()
@@ -331,18 +343,22 @@ def animate(
     canvas.draw()
     background = canvas.copy_from_bbox(fig.bbox)
 
-    with _writer(path, fps) as writer:
-        for i in range(n):
-            canvas.restore_region(background)
-            image = raster.image(centers[i], k)
-            picture.set_data((255.0 * image + 0.5).astype(np.uint8))
-            ax.draw_artist(picture)
-            caption.set_text(
-                f"t = {times[i]:.2f} s" if times is not None else f"frame {i + 1} of {n}"
-            )
-            ax.draw_artist(caption)
-            frame = np.asarray(canvas.buffer_rgba())[..., :3]
-            writer.append_data(np.ascontiguousarray(frame))
+    with warnings.catch_warnings():
+        # imageio-ffmpeg starts ffmpeg with fork and exec; JAX warns on every fork, but the
+        # child runs no Python (it only execs ffmpeg), which is safe.
+        warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
+        with _writer(iio, path, fps) as writer:
+            for i in range(n):
+                canvas.restore_region(background)
+                image = raster.image(centers[i], k)
+                picture.set_data((255.0 * image + 0.5).astype(np.uint8))
+                ax.draw_artist(picture)
+                caption.set_text(
+                    f"t = {times[i]:.2f} s" if times is not None else f"frame {i + 1} of {n}"
+                )
+                ax.draw_artist(caption)
+                frame = np.asarray(canvas.buffer_rgba())[..., :3]
+                writer.append_data(np.ascontiguousarray(frame))
     return path
 
 
