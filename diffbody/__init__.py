@@ -3,7 +3,7 @@
 The core (this folder's modules) holds the body, its one tree walk, the kinematics, the
 orientation conventions, limits, postures, local frames, the spine and rendering; each family
 of work is a sub-package: `files`, `anthropometry`, `contact`, `ik`, `fitting`, `images`,
-`export` and `cli` (docs/design.md, "Families")."""
+`export`, `viewer` and `cli` (docs/design.md, "Families")."""
 
 import importlib
 from typing import TYPE_CHECKING
@@ -93,6 +93,7 @@ _FAMILIES = {
         "read_ik_tasks",
         "read_markers",
         "read_trc",
+        "c3d_screen_axes",
         "sample_pose",
         "scale_and_register",
         "scale_offsets",
@@ -137,6 +138,10 @@ _FAMILIES = {
         "walking_motion",
         "webb",
         "write_joint_tree",
+    ),
+    "viewer": (
+        "Viewer",
+        "view",
     ),
 }
 _LAZY = {name: family for family, names in _FAMILIES.items() for name in names}
@@ -208,6 +213,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         MotionFit,
         SphereFit,
         StaticFit,
+        c3d_screen_axes,
         fit_motion,
         fit_spheres,
         fit_spheres_batch,
@@ -263,6 +269,10 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         walking_motion,
         webb,
         write_joint_tree,
+    )
+    from .viewer import (
+        Viewer,
+        view,
     )
 
 __version__ = "0.1.0"
@@ -349,6 +359,7 @@ __all__ = [
     "MarkerFileError",
     "MarkerTrial",
     "read_c3d",
+    "c3d_screen_axes",
     "read_markers",
     "read_trc",
     "write_trc",
@@ -409,6 +420,9 @@ __all__ = [
     "mujoco_joint_names",
     "mujoco_qpos",
     "urdf_joint_values",
+    # Viewing
+    "Viewer",
+    "view",
     # Rendering
     "draw",
     "draw_cloud",

@@ -45,7 +45,8 @@ def map_chunks(
     chunk: int,
     sharding: jax.sharding.Sharding | None = None,
     progress: bool = False,
-    label: str = "rows",
+    label: str = "batch",
+    unit: str = "row",
     carry=None,
 ):
     """`fn` over the rows of `arrays` (a tuple of pytrees, each leaf with the same leading
@@ -56,7 +57,7 @@ def map_chunks(
     returned with the results. Else `fn(*part) -> out`.
     """
     total = len(jax.tree.leaves(arrays)[0])
-    bar = Progress(total, progress, label)
+    bar = Progress(total, progress, label, unit)
     parts = []
     for at in range(0, total, chunk):
         m = min(chunk, total - at)

@@ -1,37 +1,42 @@
-"""A one-line progress bar for long batches (reach, scaling, fits, frames)."""
+"""Progress of long batches (reach, scaling, fits, frames): tqdm's bar, which draws a widget
+in a notebook and a line in a terminal."""
 
-import math
 import sys
-import time
+import warnings
 
 
-def _duration(s: float) -> str:
-    if not math.isfinite(s):
-        return "?"
-    s = int(round(s))
-    h, r = divmod(s, 3600)
-    m, s = divmod(r, 60)
-    return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s" if m else f"{s}s"
+def _tqdm():
+    """tqdm.auto's class: the notebook widget under Jupyter (where ipywidgets is installed),
+    else the terminal bar; without ipywidgets tqdm warns once and uses the text bar, which
+    a notebook shows as well."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        from tqdm.auto import tqdm
+    return tqdm
 
 
 class Progress:
-    """A one-line progress bar on stderr: solves done / total, rate, ETA."""
+    """A progress bar over `total` items counted in `unit`s ("solve", "frame", ...), shown
+    when `enabled`. Where stderr is not a terminal (a log file, CI) it redraws at most
+    every 10 s instead of continuously."""
 
-    def __init__(self, total: int, enabled: bool, label: str = "reach", width: int = 30):
-        self.total, self.enabled, self.label, self.width = total, enabled, label, width
-        self.t0 = time.perf_counter()
+    def __init__(self, total: int, enabled: bool, label: str = "reach", unit: str = "row"):
+        self.bar = None
+        if enabled:
+            terminal = hasattr(sys.stderr, "isatty") and sys.stderr.isatty()
+            self.bar = _tqdm()(
+                total=total,
+                desc=label,
+                unit=unit,
+                file=sys.stderr,
+                mininterval=0.1 if terminal else 10.0,
+                dynamic_ncols=terminal,
+            )
 
     def update(self, done: int) -> None:
-        if not self.enabled:
+        """`done` items of `total` are finished; the bar closes when all are."""
+        if self.bar is None:
             return
-        elapsed = time.perf_counter() - self.t0
-        rate = done / elapsed if elapsed > 0 else float("nan")
-        eta = (self.total - done) / rate if rate > 0 else float("inf")
-        fill = int(self.width * done / max(self.total, 1))
-        bar = "#" * fill + "." * (self.width - fill)
-        end = "\n" if done >= self.total else ""
-        sys.stderr.write(
-            f"\r{self.label} [{bar}] {done}/{self.total} solves, {rate:.3g}/s, "
-            f"ETA {_duration(eta)}   {end}"
-        )
-        sys.stderr.flush()
+        self.bar.update(done - self.bar.n)
+        if done >= self.bar.total:
+            self.bar.close()

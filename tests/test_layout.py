@@ -20,7 +20,17 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "diffbody"
 # A sub-package may import from the core and from those before it, never from those after.
-ORDER = ("files", "anthropometry", "contact", "ik", "fitting", "images", "export", "cli")
+ORDER = (
+    "files",
+    "anthropometry",
+    "contact",
+    "ik",
+    "fitting",
+    "images",
+    "export",
+    "viewer",
+    "cli",
+)
 MAX_LINES = 450
 
 

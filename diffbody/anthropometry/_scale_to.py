@@ -125,6 +125,7 @@ def _solve_rows(template: Body, args: _Args, y0: np.ndarray, chunk: int, progres
             chunk=chunk,
             progress=progress and attempt == 0,
             label="scale",
+            unit="person",
         )
         linear = np.einsum("nij,nj->ni", A[rows], x[rows])
         off = np.max(np.abs(exact[rows] / linear - 1), axis=1) > PIECE_TOL

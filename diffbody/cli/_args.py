@@ -63,6 +63,17 @@ def positive_int(text: str) -> int:
     return value
 
 
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (an index)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an index (0, 1, ...), got {text!r}")
+    return value
+
+
 def finite_float(text: str) -> float:
     """argparse type: a finite number (nan and inf parse as floats but are no position)."""
     try:
@@ -120,6 +131,12 @@ def add_solver_args(p) -> None:
         help="only these segments move (names, on the effector's chain)",
     )
     p.add_argument("--starts", type=positive_int, default=8, help="most solver starts (default 8)")
+
+
+def check_pose_output(option: str, path: str | None) -> None:
+    """Refuse a pose file name without a pose file's suffix (.json or .npz) before solving."""
+    if path is not None and not path.lower().endswith((".json", ".npz")):
+        raise ValueError(f"{option} {path}: a pose file ends in .json or .npz")
 
 
 def check_output(option: str, path: str | None) -> None:

@@ -20,7 +20,11 @@ def add_batch_command(sub) -> None:
     add_body_args(p)
     p.add_argument("targets", help="CSV: x,y,z per effector in order, header optional")
     p.add_argument("--effector", action="append", required=True, help="repeat for several")
-    p.add_argument("--out", default="results.csv", help="CSV to write (default results.csv)")
+    p.add_argument(
+        "--out",
+        default="results.csv",
+        help="CSV to write (default results.csv); the postures go beside it (results.poses.npz)",
+    )
     p.add_argument("--chunk-size", type=positive_int, default=4096, help="rows per compiled call")
     add_solver_args(p)
     p.set_defaults(run=_batch)
@@ -99,9 +103,18 @@ def _read_targets(path: str, k: int):
     return np.asarray(rows, float).reshape(-1, k, 3)
 
 
+def _poses_path(csv_path: str) -> str:
+    """The postures file beside a results CSV: results.csv -> results.poses.npz."""
+    root, _ = os.path.splitext(csv_path)
+    return f"{root}.poses.npz"
+
+
 def _batch(args) -> int:
     import csv
 
+    import numpy as np
+
+    from ..files._pose_file import save_pose
     from ..ik._reach import ReachStatus
     from ..ik._reach_batch import solve_reach_batch
 
@@ -140,6 +153,18 @@ def _batch(args) -> int:
                     int(out.valid[i, j]),
                 ]
             w.writerow(cells + [ReachStatus(int(out.status[i])).name.lower(), int(out.steps[i])])
+    poses = _poses_path(args.out)
+    save_pose(
+        poses,
+        body,
+        out.pose,
+        kind="batch",
+        status=[ReachStatus(int(s)).name.lower() for s in np.asarray(out.status)],
+        residuals={"targets": out.residuals},
+        overlays={"targets": {"names": list(args.effector), "points": xyz}},
+        extra={"reached": out.reached, "valid": out.valid, "steps": out.steps},
+    )
     n_reached = int(out.reached.all(axis=1).sum())
-    print(f"{n_reached} of {xyz.shape[0]} rows reached; wrote {args.out}")
+    rows = xyz.shape[0]
+    print(f"{n_reached} of {rows} rows reached; wrote {args.out} and {poses} (the postures)")
     return 0

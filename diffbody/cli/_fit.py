@@ -56,7 +56,6 @@ def _read_cloud(path: str):
 
 
 def _fit(args) -> int:
-    import json
 
     import numpy as np
 
@@ -89,29 +88,26 @@ def _fit(args) -> int:
             "correspondences help)"
         )
     from ..anthropometry._scaling import SCALE_GROUPS
+    from ..files._pose_file import save_pose
 
     print("scale group        axial  radial")
     for name, a, r in zip(SCALE_GROUPS, np.asarray(out.axial), np.asarray(out.radial)):
         print(f"  {name:<15} {a:7.4f} {r:7.4f}")
     path = save_body(fitted, args.out)
-    pose_path = path.with_name(f"{path.stem}.pose.json")
-    angles = np.degrees(np.asarray(out.pose.angles))
-    spine = out.pose.spine_target
-    data = {
-        "cloud": args.cloud,
-        "status": status,
-        "landed": landed,
-        "steps": int(out.steps),
-        "position": np.asarray(out.pose.position).tolist(),
-        "angles_deg": {n: angles[i].tolist() for i, n in enumerate(body.segment_names)},
-        "spine_target_deg": None if spine is None else np.degrees(np.asarray(spine)).tolist(),
-        "axial": dict(zip(SCALE_GROUPS, np.asarray(out.axial).tolist())),
-        "radial": dict(zip(SCALE_GROUPS, np.asarray(out.radial).tolist())),
-        "residuals": np.asarray(out.residuals).tolist(),
-        "inliers": inliers.tolist(),
-    }
-    with open(pose_path, "w") as f:
-        json.dump(data, f, indent=1)
+    pose_path = save_pose(
+        path.with_name(f"{path.stem}.pose.json"),
+        fitted,
+        out.pose,
+        status=status,
+        residuals={"spheres": out.residuals},
+        scale={
+            "groups": list(SCALE_GROUPS),
+            "axial": out.axial,
+            "radial": out.radial,
+        },
+        overlays={"cloud": {"centers": centers, "radii": radii, "inliers": inliers}},
+        extra={"cloud": args.cloud, "landed": landed, "steps": int(out.steps)},
+    )
     print(f"wrote {path} (the fitted body) and {pose_path} (its pose and the fit)")
     if args.png:
         from .._render import render

@@ -1,5 +1,5 @@
 """The `diffbody reach` command: one effector to one target, the posture printed and
-optionally written as JSON and drawn."""
+optionally written as a pose file and drawn."""
 
 import argparse
 
@@ -10,6 +10,7 @@ from ._args import (
     body_from_args,
     check_names,
     check_output,
+    check_pose_output,
     check_segments,
     finite_float,
     prefetch,
@@ -27,7 +28,7 @@ def add_reach_command(sub) -> None:
     add_body_args(p)
     p.add_argument("--effector", required=True, help="joint, feature or center_of_gravity")
     p.add_argument("--target", nargs=3, type=finite_float, required=True, metavar=("X", "Y", "Z"))
-    p.add_argument("--out", default=None, help="JSON to write (angles in degrees)")
+    p.add_argument("--out", default=None, help="pose file to write (.json or .npz)")
     p.add_argument("--png", default=None, help="PNG of the pose to write")
     add_solver_args(p)
     p.set_defaults(run=_reach)
@@ -52,8 +53,6 @@ def _verdict(out, k: int) -> str:
 
 
 def _reach(args) -> int:
-    import json
-
     import jax
     import numpy as np
 
@@ -61,6 +60,7 @@ def _reach(args) -> int:
     from ..ik._targets import Target
 
     check_output("--out", args.out)
+    check_pose_output("--out", args.out)
     check_output("--png", args.png)
     body = body_from_args(args)
     check_names(body, [args.effector], args.segments)
@@ -97,20 +97,23 @@ def _reach(args) -> int:
         spine_target = np.degrees(np.asarray(spine_target)).tolist()
         print("  spine target (flexion, axial, lateral) deg:", [round(a, 2) for a in spine_target])
     if args.out:
-        data = {
-            "effector": args.effector,
-            "target": target.tolist(),
-            "angles_deg": {n: angles[i].tolist() for i, n in enumerate(body.segment_names)},
-            "position": np.asarray(out.pose.position).tolist(),
-            "spine_target_deg": spine_target,
-            "residuals": np.asarray(out.residuals).tolist(),
-            "reached": np.asarray(out.reached).tolist(),
-            "status": ReachStatus(int(out.status)).name.lower(),
-            "steps": int(out.steps),
-        }
-        with open(args.out, "w") as f:
-            json.dump(data, f, indent=1)
-        print(f"wrote {args.out}")
+        from ..files._pose_file import save_pose
+
+        save_pose(
+            args.out,
+            body,
+            out.pose,
+            status=ReachStatus(int(out.status)),
+            residuals={"targets": out.residuals},
+            overlays={"targets": {"names": [args.effector], "points": [target]}},
+            extra={
+                "effector": args.effector,
+                "target": target,
+                "reached": out.reached,
+                "steps": int(out.steps),
+            },
+        )
+        print(f"wrote {args.out} (a pose file: diffbody view, diffbody render --pose)")
     if args.png:
         from .._render import render
 

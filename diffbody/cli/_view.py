@@ -36,7 +36,7 @@ def _view(args) -> int:
 
     body = body_from_args(args)
     record = load_pose(args.file, body)  # a missing or foreign file is reported before serving
-    from ..view import view
+    from ..viewer import view
 
     try:
         viewer = view(body, record, port=args.port, host=args.host, title=args.file)

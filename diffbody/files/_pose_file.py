@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -39,7 +40,8 @@ class PoseFileError(ValueError):
 
 def structure_hash(body: Body) -> str:
     """16 hex digits naming the body's structure: what a pose's rows mean (segment and joint
-    names, the tree, the limit kinds and the spine's joints), not its dimensions."""
+    names, the tree, the limit kinds, the root joint and the spine's joints), not its
+    dimensions."""
     spine = body.spine.joint_names if body.spine is not None else ()
     text = json.dumps(
         [
@@ -50,6 +52,7 @@ def structure_hash(body: Body) -> str:
             body.distal_joint,
             body.standard_kind,
             body.limit_kind,
+            body.root_joint,  # what Pose.position places (Body.with_root)
             spine,
         ]
     )
@@ -276,11 +279,13 @@ def load_pose(path: str | Path, body: Body | None = None) -> PoseRecord:
             f"expected angles {lead + (len(names), 3)} and position {lead + (3,)}"
         )
     spine = doc.get("spine_target_deg")
-    pose = Pose(
-        jnp.asarray(position),
-        jnp.asarray(np.radians(degrees)),
-        None if spine is None else jnp.asarray(np.radians(np.asarray(spine, float))),
-    )
+    leaves = [jnp.asarray(position), jnp.asarray(np.radians(degrees))]
+    if spine is not None:
+        leaves.append(jnp.asarray(np.radians(np.asarray(spine, float))))
+    # One pose builds the structure; unflattening gives it the file's leading axis (Pose's
+    # annotations name one pose's shapes).
+    single = Pose(*(leaf[(0,) * len(lead)] for leaf in leaves))
+    pose = jax.tree.unflatten(jax.tree.structure(single), leaves)
     times = doc.get("times")
     status = doc.get("status")
     return PoseRecord(

@@ -18,6 +18,9 @@ from ._marker_trial import (
     MarkerTrial as MarkerTrial,
 )
 from ._markers import (
+    c3d_screen_axes as c3d_screen_axes,
+)
+from ._markers import (
     read_c3d as read_c3d,
 )
 from ._markers import (

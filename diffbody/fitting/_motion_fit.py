@@ -359,7 +359,13 @@ def fit_motion(
     x_first = jnp.full(lay.pose.n_free, jnp.nan, dtype)
     chunk = min(chunk_size, trial.n_frames)
     _, (poses, p, err, status, steps) = map_chunks(
-        chunk_fit, (target, sqrt_w), chunk=chunk, progress=progress, label="frames", carry=x_first
+        chunk_fit,
+        (target, sqrt_w),
+        chunk=chunk,
+        progress=progress,
+        label="mocap",
+        unit="frame",
+        carry=x_first,
     )
     rms, worst = _rms_max(err, axis=1)
     return MotionFit(

@@ -357,6 +357,7 @@ def fit_spheres_batch(
         chunk=chunk_rows(chunk_size, measured.shape[0]),
         progress=progress,
         label="fit",
+        unit="cloud",
     )
     result = _result(body, template, out)
     return jax.tree.map(lambda a: np.asarray(a) if eqx.is_array(a) else a, result)

@@ -245,10 +245,11 @@ def _round(s: _Setup, layout: Layout, rows, poses: Pose | None, x, ks, fresh, ca
             sharding=s.sharding,
             progress=s.progress,
             label=label,
+            unit="solve",
         )
     arrays = (poses,) + arrays
     return map_chunks(
-        fn, arrays, chunk=chunk, sharding=s.sharding, progress=s.progress, label=label
+        fn, arrays, chunk=chunk, sharding=s.sharding, progress=s.progress, label=label, unit="solve"
     )
 
 
@@ -334,7 +335,7 @@ def _start(
     rounds = np.where(far[rows], len(far_caps), len(caps))
     out = None
     going = np.arange(m)
-    label = "solves" if phase == 0 and np.all(start == 0) else "solves, further"
+    label = "reach" if phase == 0 and np.all(start == 0) else "reach, further starts"
     closed = closed_form(phase, s.templates[0])
     for r, cap in enumerate(caps):
         poses = None if start_poses is None else _rows(start_poses, rows[going])
@@ -391,7 +392,13 @@ def _project(s: _Setup, best: Attempt) -> Attempt:
 def _over_poses(s: _Setup, fn, poses: Pose, label: str):
     """fn over the rows' poses, in the setup's chunks and sharding."""
     return map_chunks(
-        fn, (poses,), chunk=s.chunk, sharding=s.sharding, progress=s.progress, label=label
+        fn,
+        (poses,),
+        chunk=s.chunk,
+        sharding=s.sharding,
+        progress=s.progress,
+        label=label,
+        unit="pose",
     )
 
 

@@ -17,28 +17,20 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 SPREAD = 1.3  # the starts' range of the free variables (sin map: +-96 % of each range)
-_PRIMES = (2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53, 59, 61, 67, 71, 73, 79)
-
-
-def _radical_inverse(k: int, base: int) -> float:
-    out, f = 0.0, 1.0 / base
-    while k:
-        k, digit = divmod(k, base)
-        out += digit * f
-        f /= base
-    return out
 
 
 @functools.cache
 def halton(n_starts: int, dim: int) -> np.ndarray:
-    """(n_starts, dim) points of the Halton sequence in [-SPREAD, SPREAD] (row 0 unused)."""
-    pts = np.asarray(
-        [
-            [_radical_inverse(k, _PRIMES[d % len(_PRIMES)]) for d in range(dim)]
-            for k in range(n_starts)
-        ]
-    )
-    return SPREAD * (2.0 * pts.reshape(n_starts, dim) - 1.0)
+    """(n_starts, dim) points of a Halton sequence in [-SPREAD, SPREAD] (row 0 unused).
+
+    scipy's scrambled sequence (a fixed seed: the same starts for every problem). Unscrambled,
+    the bases of a whole-body problem's 100-odd variables are large primes, whose first 64
+    points k / p nearly coincide from one prime to the next: the starts would move those
+    variables together."""
+    from scipy.stats import qmc  # on first use: importing scipy.stats costs a few tenths of a s
+
+    points = qmc.Halton(d=max(dim, 1), scramble=True, seed=0).random(n_starts)[:, :dim]
+    return SPREAD * (2.0 * points - 1.0)
 
 
 MAX_STARTS = 64  # starts beyond this many repeat the table (each is tried at most once)

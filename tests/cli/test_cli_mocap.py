@@ -5,11 +5,11 @@ trial, and its errors on bad input."""
 import numpy as np
 import pytest
 
+import diffbody as db
 from diffbody._joint_angles import angle_names
 from diffbody.cli import main
 from diffbody.files._data_files import data_file
 from diffbody.files._motion_files import read_mot
-from diffbody.fitting._sphere_fit import FitStatus
 from diffbody.fitting._trc import read_trc, write_trc
 
 
@@ -53,19 +53,23 @@ def test_mocap_command(trials, tmp_path, capsys):
     assert all(np.all(np.isfinite(v)) for v in angles.values())
     model = read_trc(trc)
     assert model.n_frames == 4 and model.n_markers == 49
-    data = np.load(out)
-    n, m = len(data["times"]), len(data["marker_names"])
-    assert n == 4 and m == 49
-    assert data["angles"].shape == (n, len(data["segment_names"]), 3)
-    assert data["model_markers"].shape == data["measured_markers"].shape == (n, m, 3)
-    assert data["errors"].shape == (n, m) and data["rms"].shape == data["max"].shape == (n,)
-    assert data["outliers"].shape == (n, m) and not data["outliers"].any()
-    np.testing.assert_allclose(model.positions, data["model_markers"], atol=1e-6)
+    scaled = db.load_body(tmp_path / "fit.body.json")
+    record = db.load_pose(out, scaled)
+    measured = np.asarray(record.overlays["markers"]["positions"])
+    model_markers = np.asarray(record.extra["model_markers"])
+    n, m = record.n_frames, len(record.overlays["markers"]["names"])
+    assert n == 4 and m == 49 and record.kind == "sequence" and record.times.shape == (n,)
+    assert record.pose.angles.shape == (n, scaled.n_segments, 3)
+    assert model_markers.shape == measured.shape == (n, m, 3)
+    errors, rms = record.residuals["errors"], record.residuals["rms"]
+    assert errors.shape == (n, m) and rms.shape == record.residuals["max"].shape == (n,)
+    assert record.residuals["outliers"].shape == (n, m) and not record.residuals["outliers"].any()
+    np.testing.assert_allclose(model.positions, model_markers, atol=1e-6)
     # The saved errors are the distances between the saved model and measured markers.
-    gap = np.linalg.norm(data["model_markers"] - data["measured_markers"], axis=-1)
-    np.testing.assert_allclose(data["errors"], gap, atol=1e-6)
-    np.testing.assert_allclose(data["rms"], np.sqrt(np.nanmean(gap**2, axis=1)), atol=1e-6)
-    assert np.all(np.isfinite(data["angles"])) and np.all(data["axial"] > 0)
+    gap = np.linalg.norm(model_markers - measured, axis=-1)
+    np.testing.assert_allclose(errors, gap, atol=1e-6)
+    np.testing.assert_allclose(rms, np.sqrt(np.nanmean(gap**2, axis=1)), atol=1e-6)
+    assert np.all(np.isfinite(record.pose.angles)) and np.all(np.asarray(record.scale["axial"]) > 0)
     assert (tmp_path / "fit.body.json").is_file() and png.stat().st_size > 0
     assert str(tmp_path / "fit.body.json") in text
 
@@ -79,9 +83,9 @@ def test_mocap_with_opensims_files(trials, tmp_path, capsys):
     argv += ["--tasks", str(data_file("mocap/subject01_Setup_IK.xml"))]
     assert main(argv) == 0
     text = capsys.readouterr().out
-    data = np.load(out)
-    assert len(data["marker_names"]) == 39 and "4 frames, 39 markers fitted" in text
-    assert np.all(np.isfinite(data["angles"])) and np.all(data["status"] == FitStatus.CONVERGED)
+    record = db.load_pose(out)
+    assert len(record.overlays["markers"]["names"]) == 39 and "4 frames, 39 markers fitted" in text
+    assert np.all(np.isfinite(record.pose.angles)) and record.status == ("converged",) * 4
 
 
 def test_mocap_bad_file_exits_2(trials, tmp_path, capsys):

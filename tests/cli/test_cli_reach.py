@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 from command_line import ARM_BATCH, arm_batch
 
+import diffbody as db
 from diffbody.cli._main import main
+from diffbody.files import load_pose
 
 
-def test_reach_command(tmp_path, capsys):
+def test_reach_command(male50, tmp_path, capsys):
     out, png = tmp_path / "result.json", tmp_path / "pose.png"
     argv = ["reach", "--effector", "left_hand.palm", "--target", "0.3", "0.2", "1.0"]
     assert main(argv + ["--out", str(out), "--png", str(png)]) == 0
@@ -21,10 +23,14 @@ def test_reach_command(tmp_path, capsys):
     assert "reached, residual" in text and "mm" in text and "status" not in text
     assert "left_upper_arm" in text  # a main joint angle, in degrees
     data = json.loads(out.read_text())
-    assert data["reached"] == [True] and data["residuals"][0] < 1e-3
+    assert data["format"] == "diffbody.pose/1" and data["extra"]["reached"] == [True]
     assert len(data["angles_deg"]["left_forearm"]) == 3 and len(data["position"]) == 3
-    assert data["status"] == "success"
-    assert data["spine_target_deg"] is None  # the arm reaches it: the spine stays as it was
+    record = load_pose(out, male50)
+    assert record.kind == "pose" and record.status == "success"
+    assert record.residuals["targets"][0] < 1e-3
+    assert record.pose.spine_target is None  # the arm reaches it: the spine stays as it was
+    palm = db.forward(male50, record.pose).feature_points[male50.feature_index("left_hand.palm")]
+    np.testing.assert_allclose(palm, record.overlays["targets"]["points"][0], atol=1e-3)
     assert png.stat().st_size > 0
 
 
@@ -32,7 +38,8 @@ def test_batch_command(tmp_path, capsys):
     targets, results = tmp_path / "targets.csv", tmp_path / "results.csv"
     targets.write_text("x,y,z\n0.3,0.2,1.0\nnan,0.2,1.0\n0.15,0.3,0.85\n")
     assert main(arm_batch(targets, results) + ARM_BATCH) == 0
-    assert "3/3 solves" in capsys.readouterr().err
+    err = capsys.readouterr().err  # the progress bar
+    assert "reach: 100%" in err and "3/3 [" in err
     with results.open(newline="") as f:
         rows = list(csv.DictReader(f))
     assert [r["left_hand.palm.reached"] for r in rows] == ["1", "0", "1"]

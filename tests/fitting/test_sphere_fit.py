@@ -1,7 +1,5 @@
 """Fitting dimensions and posture to measured sphere clouds (diffbody.fitting._sphere_fit)."""
 
-import json
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -81,13 +79,15 @@ def test_the_fit_command_on_noisy_clouds_with_outliers(male50, tmp_path, capsys)
         error = np.abs(np.asarray(fitted.lengths) - np.asarray(person.lengths))
         error = error[np.asarray(person.lengths) > 0]
         print(f"cloud {seed}: length error mean {1e3 * error.mean():.2f} mm")
-        data = json.loads((tmp_path / f"fitted{seed}.pose.json").read_text())
-        assert set(data["axial"]) == set(db.SCALE_GROUPS) and len(data["position"]) == 3
+        record = db.load_pose(tmp_path / f"fitted{seed}.pose.json", fitted)
+        assert record.scale["groups"] == list(db.SCALE_GROUPS) and record.kind == "pose"
+        assert len(record.scale["axial"]) == len(db.SCALE_GROUPS)
         # The command says when a fit did not land (too few inliers), and writes it.
-        assert ("did not land" in text) == (not data["landed"])
+        assert ("did not land" in text) == (not record.extra["landed"])
         if error.mean() < LANDED:
             landed += 1
-            inliers, outlier = np.asarray(data["inliers"]), np.asarray(match) < 0
+            inliers = np.asarray(record.overlays["cloud"]["inliers"])
+            outlier = np.asarray(match) < 0
             assert np.mean(inliers[~outlier]) > 0.97  # the measured spheres of the body kept
             assert np.mean(inliers[outlier]) < 0.2  # what a random sphere rarely is
     assert (tmp_path / "fit.png").stat().st_size > 0

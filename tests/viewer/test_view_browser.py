@@ -46,7 +46,7 @@ def test_slider_in_the_page_moves_the_body(male50, arm_raise, tmp_path):
         pytest.skip("no chromium on PATH (apt-get install chromium)")
     sync_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (pip)")
     pytest.importorskip("viser", reason="the viewer needs viser: pip install 'diffbody[view]'")
-    from diffbody.view import view
+    from diffbody.viewer import view
 
     poses, times = arm_raise
     with view(male50, poses, times=times, port=0) as viewer:

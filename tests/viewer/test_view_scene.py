@@ -8,8 +8,8 @@ import pytest
 
 import diffbody as db
 from diffbody._joint_angles import angle_names, joint_angles
-from diffbody.view import build_scene, view
-from diffbody.view._viewer import angle_table
+from diffbody.viewer import build_scene, view
+from diffbody.viewer._viewer import angle_table
 
 
 @pytest.fixture(scope="module")
