@@ -18,7 +18,7 @@ only at >= 99.9 % success, and its success rate is printed beside it.
 The figures (goals for a 2-core CPU, float32, the default body `diffbody.load_body()`):
 
 1. CLI: the README command as written, `diffbody reach --effector left_hand.palm --target
-   0.35 0.3 1.1 --out reach.json --png reach.png`, end-to-end wall time of the subprocess
+   0.35 0.3 1.1 --out reach.pose.json --png reach.png`, end-to-end wall time of the subprocess
    with an empty compilation cache (a fresh `JAX_COMPILATION_CACHE_DIR`), < 3 s; then again
    with the cache it filled, < 1 s. (`--skip-cli`)
 2. `solve_reach` on the whole body (default unknowns: root to palm, the spine as its
@@ -200,7 +200,7 @@ def run_cli(body, device: str, cache_dir: str, out_dir: str) -> CliRun:
     """The README's reach command, end to end, with JAX's compilation cache in `cache_dir`."""
     import diffbody as db
 
-    out, png = Path(out_dir) / "reach.json", Path(out_dir) / "reach.png"
+    out, png = Path(out_dir) / "reach.pose.json", Path(out_dir) / "reach.png"
     command = _diffbody_command() + ["reach", "--effector", EFFECTOR, "--target"]
     command += [str(x) for x in CLI_TARGET] + ["--out", str(out), "--png", str(png)]
     env = child_env(device)

@@ -1,7 +1,10 @@
-"""Render the README's benchmark tables from the committed results files.
+"""Render the documentation's benchmark tables from the committed results files.
 
-    python benchmarks/render_readme.py           # rewrite README.md between the markers
-    python benchmarks/render_readme.py --check   # exit 1 if README.md differs
+    python benchmarks/render_readme.py           # rewrite the pages between the markers
+    python benchmarks/render_readme.py --check   # exit 1 if a page differs
+
+The pages are `PAGES`: docs/benchmarks.md, and docs/guide.md where a workflow quotes its
+own figures.
 
 A table sits between `<!-- results NAME TABLE -->` and `<!-- /results -->`: NAME is the
 results file `benchmarks/results/NAME.json`, TABLE one of its tables, or `goals` for its
@@ -16,7 +19,7 @@ import sys
 
 from results import RESULTS, ROOT, git, load
 
-README = ROOT / "README.md"
+PAGES = (ROOT / "docs" / "benchmarks.md", ROOT / "docs" / "guide.md")
 MARKER = re.compile(
     r"(<!-- results (?P<name>[\w-]+) (?P<table>[\w-]+) -->\n)(?P<body>.*?)(<!-- /results -->)",
     re.S,
@@ -78,7 +81,7 @@ def render_one(name: str, table: str, stale: bool | None = "git") -> str:
     the caption's last sentence (the README test renders both where git cannot tell)."""
     path = RESULTS / f"{name}.json"
     if not path.exists():
-        raise SystemExit(f"{README.name}: no results file {path.relative_to(ROOT)} for {name}")
+        raise SystemExit(f"no results file {path.relative_to(ROOT)} for {name}")
     record = load(path)
     if stale == "git":
         stale = changed_since(record)
@@ -99,16 +102,19 @@ def render(text: str) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="exit 1 if README.md differs")
+    parser.add_argument("--check", action="store_true", help="exit 1 if a page differs")
     args = parser.parse_args()
-    text = README.read_text()
-    new = render(text)
-    if args.check:
-        if new != text:
-            sys.exit("README.md's tables differ from benchmarks/results: run render_readme.py")
-        return
-    README.write_text(new)
-    print(f"{len(MARKER.findall(text))} tables rendered into {README.name}")
+    for page in PAGES:
+        text = page.read_text()
+        new = render(text)
+        if args.check:
+            if new != text:
+                sys.exit(
+                    f"{page.name}'s tables differ from benchmarks/results: run render_readme.py"
+                )
+            continue
+        page.write_text(new)
+        print(f"{len(MARKER.findall(text))} tables rendered into {page.relative_to(ROOT)}")
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ from common import (  # noqa: E402
 )
 from render_readme import (  # noqa: E402
     MARKER,
-    README,
+    PAGES,
     caption,
     changed_since,
     goals_table,
@@ -46,8 +46,12 @@ BENCHMARKS = (
 
 
 def readme_tables() -> list[tuple[str, str, str]]:
-    """(results name, table, the text between the markers) of each table in README.md."""
-    return [(m["name"], m["table"], m["body"]) for m in MARKER.finditer(README.read_text())]
+    """(results name, table, the text between the markers) of each table of the pages."""
+    return [
+        (m["name"], m["table"], m["body"])
+        for page in PAGES
+        for m in MARKER.finditer(page.read_text())
+    ]
 
 
 @pytest.mark.parametrize("script", BENCHMARKS)
@@ -94,7 +98,7 @@ def test_readme_table_is_rendered_from_its_results_file(name, table):
     stale = changed_since(record)
     expected = [stale] if stale is not None else [True, False]
     assert shown in [render_one(name, table, s) for s in expected], (
-        "README.md differs from benchmarks/results: run python benchmarks/render_readme.py"
+        "the docs differ from benchmarks/results: run python benchmarks/render_readme.py"
     )
     assert f"Measured at `{record['commit'][:10]}`" in shown
 

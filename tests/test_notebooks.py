@@ -16,7 +16,10 @@ from nbclient import NotebookClient
 
 ROOT = Path(__file__).resolve().parent.parent
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
-README = " ".join((ROOT / "README.md").read_text().split())  # quotes may wrap anywhere
+# The README and the guide, where the workflows quote their figures (quotes may wrap anywhere).
+README = " ".join(
+    " ".join((ROOT / page).read_text().split()) for page in ("README.md", "docs/guide.md")
+)
 
 # batch_ik's reach envelope solves a 47^3 grid and its gradient study 16 targets (its saved
 # outputs); the suite runs 8^3 and 3.

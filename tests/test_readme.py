@@ -1,16 +1,113 @@
-"""The README's code runs as written."""
+"""The README and the user's guide run as written: every Python block, and every `diffbody`
+command of the README (install, clone and virtual-environment lines are exempt, and so is
+`pytest`, the command running this), in document order in one folder; and the README's
+first screen says what diffbody does and how to start."""
 
+import os
 import re
+import shlex
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
-README = Path(__file__).resolve().parent.parent / "README.md"
+ROOT = Path(__file__).resolve().parent.parent
+README = ROOT / "README.md"
+GUIDE = ROOT / "docs" / "guide.md"
+BLOCK = re.compile(r"```(python|bash)\n(.*?)```", re.S)
+EXEMPT = ("git clone", "cd ", "python -m venv", ". .venv", "pip install", "pytest")
 
 
-def test_readme_tour_runs(tmp_path, monkeypatch):
-    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
-    assert blocks
+def _commands(script: str) -> list[list[str]]:
+    """The `diffbody` commands of a bash block, each as argv; anything else that is not
+    exempt fails the test (a README command the test would silently skip)."""
+    out = []
+    for line in script.splitlines():
+        line = line.split("  #")[0].strip()
+        for part in filter(None, (p.strip() for p in line.split("&&"))):
+            if part.startswith(EXEMPT):
+                continue
+            argv = shlex.split(part)
+            assert argv[0] == "diffbody", f"README: a command the test cannot run: {part!r}"
+            out.append(argv[1:])
+    return out
+
+
+def _view(argv: list[str], cwd: Path) -> None:
+    """`diffbody view` serves until Ctrl-C: it must print its URL, answer it, and stop with
+    exit status 0 on SIGINT."""
+    import urllib.request
+
+    log = cwd / "view.log"  # a file, not a pipe: a full pipe would block the server
+    with log.open("w") as out:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "diffbody", *argv],
+            cwd=cwd,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+    try:
+        url, deadline = None, time.monotonic() + 600
+        while url is None and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.5)
+            url = re.search(r"open (http://\S+)", log.read_text())
+        assert url, log.read_text()
+        with urllib.request.urlopen(url.group(1), timeout=30) as page:
+            assert page.status == 200
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 0, log.read_text()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_readme_runs_as_written(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}  # one session, as a reader runs the blocks in order
+    ran = 0
+    for kind, code in BLOCK.findall(README.read_text()):
+        if kind == "python":
+            exec(compile(code, str(README), "exec"), namespace)
+            continue
+        for argv in _commands(code):
+            if argv[0] == "view":
+                _view(argv, tmp_path)
+            else:
+                run = subprocess.run(
+                    [sys.executable, "-m", "diffbody", *argv],
+                    cwd=tmp_path,
+                    env=dict(os.environ),
+                    capture_output=True,
+                    text=True,
+                    timeout=900,
+                )
+                assert run.returncode == 0, (argv, run.stdout[-2000:], run.stderr[-2000:])
+            ran += 1
+    assert ran >= 6
+    for name in ("reach.pose.json", "reach.png", "pose.png", "reaches.gif", "body.xml"):
+        assert (tmp_path / name).stat().st_size > 0, name
+
+
+def test_the_guide_runs_as_written(tmp_path, monkeypatch):
+    blocks = re.findall(r"```python\n(.*?)```", GUIDE.read_text(), flags=re.S)
+    assert blocks
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
     for code in blocks:
-        exec(compile(code, str(README), "exec"), namespace)
+        exec(compile(code, str(GUIDE), "exec"), namespace)
     assert (tmp_path / "pose.png").is_file()
+
+
+def test_the_first_screen_says_what_and_how():
+    """Within its first 40 lines the README says what a user can do (the five workflows and
+    the viewer, one line each) and shows the install-and-run command; it stays short."""
+    text = README.read_text()
+    first = "\n".join(text.splitlines()[:40])
+    for what in ("Reach", "Scale to a person", "motion capture", "sphere clouds", "2D video"):
+        assert what in first, what
+    assert "## Start" in first and "pip install . && diffbody reach" in first
+    assert "python -m venv" in first
+    assert len(text.encode()) < 15_000
