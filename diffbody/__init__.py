@@ -53,10 +53,12 @@ _FAMILIES = {
         "sphere_pairs",
     ),
     "export": (
+        "SingularJointsWarning",
         "export_mjcf",
         "export_urdf",
         "mujoco_joint_names",
         "mujoco_qpos",
+        "mujoco_qpos_slices",
         "urdf_joint_values",
     ),
     "files": (
@@ -184,10 +186,12 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         sphere_pairs,
     )
     from .export import (
+        SingularJointsWarning,
         export_mjcf,
         export_urdf,
         mujoco_joint_names,
         mujoco_qpos,
+        mujoco_qpos_slices,
         urdf_joint_values,
     )
     from .files import (
@@ -419,6 +423,8 @@ __all__ = [
     "export_urdf",
     "mujoco_joint_names",
     "mujoco_qpos",
+    "mujoco_qpos_slices",
+    "SingularJointsWarning",
     "urdf_joint_values",
     # Viewing
     "Viewer",
