@@ -9,8 +9,8 @@ sphere's pixel box has the same size in every frame, so the boxes' pixels are la
 (`Raster`) and a frame is one compiled program over them, with `shade`'s depth test and
 lighting (tests/test_animate.py compares the two pixel for pixel). The forward kinematics
 of all frames is one vmapped, compiled call. One matplotlib figure serves every frame: its
-floor and label are drawn once and kept, and each frame draws only the body's image and
-the caption over them (blitting).
+floor and label are drawn once and kept, and each frame lays the body's picture over them,
+pixel for pixel, and draws the caption on top (blitting).
 """
 
 import math
@@ -23,6 +23,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array
 
 from ._body import Body, Pose, without_names
 from ._kinematics import forward
@@ -52,18 +53,19 @@ class Raster:
     The canvas: `shape` (rows, columns) pixels of 1 / `pixels_per_metre` m, its lower left
     corner at `origin` (screen metres: the camera's right and up). Each sphere's square box
     of pixels is laid out once (`sphere`, `ox`, `oy`: one entry per pixel of every box); a
-    frame only moves the boxes.
+    frame only moves the boxes. Arrays are JAX's, made once: a frame passes only its
+    centres.
     """
 
-    view: View
-    radii: np.ndarray  # (n,) m
-    colours: np.ndarray  # (n, 3) base RGB in [0, 1]
-    pixels_per_metre: float
-    origin: np.ndarray  # (2,) m, screen coordinates of the canvas's lower left corner
     shape: tuple[int, int]  # (rows, columns)
-    sphere: np.ndarray  # (F,) the sphere of each box pixel
-    ox: np.ndarray  # (F,) column within its box
-    oy: np.ndarray  # (F,) row within its box
+    basis: Array  # (3, 3) rows: the camera's right, up and toward-the-camera unit vectors
+    origin: Array  # (2,) m, screen coordinates of the canvas's lower left corner
+    pixels_per_metre: Array  # ()
+    radii: Array  # (n,) m
+    colours: Array  # (n, 3) base RGB in [0, 1]
+    sphere: Array  # (F,) int32, the sphere of each box pixel
+    ox: Array  # (F,) int32, column within its box
+    oy: Array  # (F,) int32, row within its box
 
     @staticmethod
     def build(radii, colours, view: View, pixels_per_metre: float, origin, shape) -> "Raster":
@@ -80,16 +82,18 @@ class Raster:
         step = 2 ** max(len(sphere).bit_length() - 4, 0)  # at most 1/8 more
         pad = -len(sphere) % step
         off = np.full(pad, -(2**24))
+        to_camera, right, up, _ = camera(view)
+        dtype = jnp.zeros(()).dtype  # float64 where x64 is on
         return Raster(
-            view=view,
-            radii=radii,
-            colours=np.asarray(colours, float),
-            pixels_per_metre=float(pixels_per_metre),
-            origin=np.asarray(origin, float),
             shape=(int(shape[0]), int(shape[1])),
-            sphere=np.concatenate([sphere, np.zeros(pad, int)]),
-            ox=np.concatenate([k % per_row, off]),
-            oy=np.concatenate([k // per_row, off]),
+            basis=jnp.asarray(np.stack([right, up, to_camera]), dtype),
+            origin=jnp.asarray(origin, dtype),
+            pixels_per_metre=jnp.asarray(pixels_per_metre, dtype),
+            radii=jnp.asarray(radii, dtype),
+            colours=jnp.asarray(colours, dtype),
+            sphere=jnp.asarray(np.concatenate([sphere, np.zeros(pad, int)]), jnp.int32),
+            ox=jnp.asarray(np.concatenate([k % per_row, off]), jnp.int32),
+            oy=jnp.asarray(np.concatenate([k // per_row, off]), jnp.int32),
         )
 
     def image(self, centers, supersample: int = 1) -> np.ndarray:
@@ -97,20 +101,18 @@ class Raster:
         (n, 3) m, rows bottom-up, transparent off the body: `shade`'s picture on this
         canvas, each block of supersample x supersample pixels averaged into one. Spheres
         with a non-finite centre are left out."""
-        to_camera, right, up, _ = camera(self.view)
-        dtype = jnp.zeros(()).dtype  # float64 where x64 is on
         out = _raster_jit(
             self.shape,
             supersample,
-            jnp.asarray(centers, dtype),
-            jnp.asarray(np.stack([right, up, to_camera]), dtype),
-            jnp.asarray(self.origin, dtype),
-            jnp.asarray(self.pixels_per_metre, dtype),
-            jnp.asarray(self.radii, dtype),
-            jnp.asarray(self.colours, dtype),
-            jnp.asarray(self.sphere, jnp.int32),
-            jnp.asarray(self.ox, jnp.int32),
-            jnp.asarray(self.oy, jnp.int32),
+            jnp.asarray(centers, self.radii.dtype),
+            self.basis,
+            self.origin,
+            self.pixels_per_metre,
+            self.radii,
+            self.colours,
+            self.sphere,
+            self.ox,
+            self.oy,
         )
         return np.asarray(out)
 
@@ -315,8 +317,7 @@ def animate(
     k = SUPERSAMPLE
     raster = Raster.build(radii, colours, view, k * per_metre, origin, (k * h, k * w))
 
-    # One figure for every frame: the floor and the label drawn once and kept (blitting);
-    # per frame only the body's image and the caption are drawn over that background.
+    # One figure for every frame: the floor and the label drawn once and kept.
     dpi = 100
     fig = Figure(figsize=(w / dpi, h / dpi), dpi=dpi, facecolor="white")
     canvas = FigureCanvasAgg(fig)
@@ -330,18 +331,14 @@ def animate(
         0.985, 0.975, f"{body.name}, {label}", transform=ax.transAxes, va="top", ha="right",
         fontsize=8, color="0.4",
     )  # fmt: skip
-    picture = ax.imshow(
-        np.zeros((h, w, 4), np.float32),
-        extent=(origin[0], top[0], origin[1], top[1]),
-        origin="lower",
-        interpolation="nearest",  # one image pixel per figure pixel
-        animated=True,
-    )
     caption = ax.text(
         0.015, 0.975, "", transform=ax.transAxes, va="top", fontsize=10, animated=True
     )
     canvas.draw()
-    background = canvas.copy_from_bbox(fig.bbox)
+    # Agg's pixels (rows top-down), written in place: each frame is the background with
+    # the body laid over it (alpha blending), then the caption drawn on top (blitting).
+    pixels = np.asarray(canvas.buffer_rgba())
+    background = pixels[..., :3].astype(np.float32)
 
     with warnings.catch_warnings():
         # imageio-ffmpeg starts ffmpeg with fork and exec; JAX warns on every fork, but the
@@ -349,16 +346,15 @@ def animate(
         warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
         with _writer(iio, path, fps) as writer:
             for i in range(n):
-                canvas.restore_region(background)
-                image = raster.image(centers[i], k)
-                picture.set_data((255.0 * image + 0.5).astype(np.uint8))
-                ax.draw_artist(picture)
+                image = raster.image(centers[i], k)[::-1]
+                alpha = image[..., 3:]
+                over = background * (1.0 - alpha) + 255.0 * image[..., :3] * alpha
+                pixels[..., :3] = (over + 0.5).astype(np.uint8)
                 caption.set_text(
                     f"t = {times[i]:.2f} s" if times is not None else f"frame {i + 1} of {n}"
                 )
-                ax.draw_artist(caption)
-                frame = np.asarray(canvas.buffer_rgba())[..., :3]
-                writer.append_data(np.ascontiguousarray(frame))
+                fig.draw_artist(caption)
+                writer.append_data(pixels[..., :3].copy())
     return path
 
 
