@@ -14,20 +14,27 @@ def _deg(x) -> float:
     return float(np.degrees(float(x)))
 
 
+def _limit_deg(x) -> float:
+    """A limit angle in degrees; +-180 stays +-180 when it arrives as float32's pi
+    (180.000005 degrees), which the schema's [-180, 180] would refuse on loading."""
+    d = _deg(x)
+    return float(np.copysign(180.0, d)) if 180.0 < abs(d) <= 180.0 + 1e-4 else d
+
+
 def _limits_doc(body: Body, i: int) -> dict:
     """The stop function of segment i as a body file's `limits` object (degrees)."""
     kind = body.limit_kind[i]
     if kind == "free":
         return {"kind": "free"}
     lo, hi = np.asarray(body.swing_lo[i]), np.asarray(body.swing_hi[i])
-    twist = [_deg(body.twist_lo[i]), _deg(body.twist_hi[i])]
-    smax = _deg(body.swing_max[i])
+    twist = [_limit_deg(body.twist_lo[i]), _limit_deg(body.twist_hi[i])]
+    smax = _limit_deg(body.swing_max[i])
     if kind == "cone":
         return {"kind": "cone", "swing_max_deg": smax, "twist_deg": twist}
     doc = {"kind": kind}
     if kind == "box":
-        doc["swing_x_deg"] = [_deg(lo[0]), _deg(hi[0])]
-    doc["swing_y_deg"] = [_deg(lo[1]), _deg(hi[1])]
+        doc["swing_x_deg"] = [_limit_deg(lo[0]), _limit_deg(hi[0])]
+    doc["swing_y_deg"] = [_limit_deg(lo[1]), _limit_deg(hi[1])]
     if kind == "box" and abs(smax - DEFAULT_SWING_MAX_DEG) > 1e-9:
         doc["swing_max_deg"] = smax
     doc["twist_deg"] = twist

@@ -144,3 +144,22 @@ def test_render_draws_a_pose_file(male50, tmp_path, capsys):
     other = db.save_pose(tmp_path / "mini_pose.json", mini, mini.rest_pose())
     err = fails(["render", "--pose", str(other), "--out", str(png)], capsys)
     assert str(other) in err and "'mini'" in err
+
+
+def test_a_float32_body_saves_and_loads_with_its_pose(male50, tmp_path):
+    """A motion-capture body held in float32 (a fit's answer: `motion_limits` widens the
+    upper arm to 180 degrees) saves +-180 as +-180, not float32 pi's 180.000005 that the
+    schema refuses, and its pose file loads onto it (regression)."""
+    wide = db.motion_limits(male50)
+    body32 = jax.tree.map(
+        lambda a: (
+            a.astype(jnp.float32) if isinstance(a, jax.Array) and a.dtype == jnp.float64 else a
+        ),
+        wide,
+    )
+    assert np.degrees(float(np.max(body32.swing_hi))) > 180.0  # float32 pi
+    path = db.save_body(body32, tmp_path / "fitted.json")
+    loaded = db.load_body(path)
+    np.testing.assert_allclose(loaded.swing_hi, wide.swing_hi, atol=1e-6)
+    pose = db.save_pose(tmp_path / "fitted.pose.json", loaded, loaded.rest_pose())
+    assert db.load_pose(pose, loaded).body_name == loaded.name
