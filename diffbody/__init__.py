@@ -84,6 +84,7 @@ _FAMILIES = {
         "MotionFit",
         "SphereFit",
         "StaticFit",
+        "draw_motion",
         "fit_motion",
         "fit_spheres",
         "fit_spheres_batch",
@@ -124,6 +125,7 @@ _FAMILIES = {
         "default_joint_tree",
         "draw_bounds",
         "draw_lifting",
+        "draw_sequence_fit",
         "image_sequence",
         "joint_centres_from_markers",
         "lift",
@@ -135,6 +137,7 @@ _FAMILIES = {
         "reaching_motion",
         "read_joint_tree",
         "refine",
+        "reprojection_errors",
         "to_camera",
         "true_reflections",
         "walking_motion",
@@ -143,6 +146,7 @@ _FAMILIES = {
     ),
     "viewer": (
         "Viewer",
+        "animate",
         "view",
     ),
 }
@@ -218,6 +222,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         SphereFit,
         StaticFit,
         c3d_screen_axes,
+        draw_motion,
         fit_motion,
         fit_spheres,
         fit_spheres_batch,
@@ -257,6 +262,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         default_joint_tree,
         draw_bounds,
         draw_lifting,
+        draw_sequence_fit,
         image_sequence,
         joint_centres_from_markers,
         lift,
@@ -268,6 +274,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         reaching_motion,
         read_joint_tree,
         refine,
+        reprojection_errors,
         to_camera,
         true_reflections,
         walking_motion,
@@ -276,6 +283,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
     )
     from .viewer import (
         Viewer,
+        animate,
         view,
     )
 
@@ -377,6 +385,7 @@ __all__ = [
     "MotionFit",
     "scale_and_register",
     "fit_motion",
+    "draw_motion",
     "descriptors",
     "motion_limits",
     # Motion capture: OpenSim's files and joint angles
@@ -418,6 +427,8 @@ __all__ = [
     "load_walk_joints",
     "draw_lifting",
     "draw_bounds",
+    "draw_sequence_fit",
+    "reprojection_errors",
     # Export
     "export_mjcf",
     "export_urdf",
@@ -426,9 +437,10 @@ __all__ = [
     "mujoco_qpos_slices",
     "SingularJointsWarning",
     "urdf_joint_values",
-    # Viewing
+    # Viewing and animations
     "Viewer",
     "view",
+    "animate",
     # Rendering
     "draw",
     "draw_cloud",

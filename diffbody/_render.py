@@ -43,6 +43,13 @@ def _region(segment: str) -> str:
     return "torso"
 
 
+def sphere_colours(body: Body) -> np.ndarray:
+    """(n_sph, 3) RGB in [0, 1]: each sphere in its segment's region colour (skin, torso,
+    arm, leg, foot), as every picture, animation and the viewer draw it."""
+    regions = [_region(body.segment_names[s]) for s in np.asarray(body.sphere_segment)]
+    return np.array([_REGION_COLOURS[r] for r in regions])
+
+
 def camera(view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """Unit vectors toward the camera, screen right and screen up, and a label."""
     if isinstance(view, str):
@@ -134,9 +141,7 @@ def draw(
     centers = np.asarray(fk.sphere_centers, dtype=float)
     radii = np.asarray(fk.sphere_radii, dtype=float)
     to_camera, right, up, label = camera(view)
-    colours = np.array(
-        [_REGION_COLOURS[_region(body.segment_names[s])] for s in np.asarray(body.sphere_segment)]
-    )
+    colours = sphere_colours(body)
     xy = np.stack([centers @ right, centers @ up], axis=-1)
     lo, hi = xy.min(axis=0) - radii.max(), xy.max(axis=0) + radii.max()
     pixels = ax.get_window_extent().height  # the axes' height in the figure's pixels

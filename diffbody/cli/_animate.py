@@ -37,8 +37,8 @@ def add_animate_command(sub) -> None:
 
 
 def _animate(args) -> int:
-    from .._animate import FORMATS, animate, frame_rate
     from ..files._pose_file import load_pose
+    from ..viewer._animate import FORMATS, animate, frame_rate
 
     check_output("--out", args.out)
     if not args.out.lower().endswith(FORMATS):

@@ -17,7 +17,7 @@ from ._view import add_view_command
 from ._webb import add_webb_command
 
 # The commands that solve: those whose compiled functions the persistent cache keeps.
-COMPILING = ("reach", "batch", "scale", "fit", "mocap", "webb")
+COMPILING = ("reach", "batch", "scale", "fit", "mocap", "webb", "animate", "view", "export")
 
 
 def main(argv: list[str] | None = None) -> int:

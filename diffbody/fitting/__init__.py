@@ -56,6 +56,9 @@ from ._motion_limits import (
 from ._motion_limits import (
     motion_limits as motion_limits,
 )
+from ._motion_plots import (
+    draw_motion as draw_motion,
+)
 from ._opensim_files import (
     load_opensim_markerset as load_opensim_markerset,
 )

@@ -74,6 +74,12 @@ from ._sequence_plots import (
 from ._sequence_plots import (
     draw_lifting as draw_lifting,
 )
+from ._sequence_plots import (
+    draw_sequence_fit as draw_sequence_fit,
+)
+from ._sequence_plots import (
+    reprojection_errors as reprojection_errors,
+)
 from ._webb import (
     WebbResult as WebbResult,
 )

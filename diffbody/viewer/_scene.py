@@ -15,7 +15,7 @@ import numpy as np
 from .._body import Body, Pose, without_names
 from .._joint_angles import angle_names, joint_angles
 from .._kinematics import forward
-from .._render import _REGION_COLOURS, _region
+from .._render import sphere_colours as region_colours
 from ..files._pose_file import PoseRecord
 
 
@@ -55,8 +55,7 @@ class Scene:
 
 def sphere_colours(body: Body) -> np.ndarray:
     """(n_sph, 3) uint8 RGB: each sphere in its segment's region colour (`diffbody.render`'s)."""
-    rgb = [_REGION_COLOURS[_region(body.segment_names[s])] for s in np.asarray(body.sphere_segment)]
-    return np.round(255 * np.asarray(rgb)).astype(np.uint8)
+    return np.round(255 * region_colours(body)).astype(np.uint8)
 
 
 @eqx.filter_jit

@@ -11,9 +11,9 @@ import pytest
 from command_line import fails
 
 import diffbody as db
-from diffbody._animate import Raster, animate, frame_rate
 from diffbody._render import _REGION_COLOURS, _region, shade
 from diffbody.cli._main import main
+from diffbody.viewer._animate import DEFAULT_FPS, Raster, animate, frame_rate
 
 N = 5  # frames: every test animates this many, so the vmapped forward compiles once
 SIZE = (128, 160)  # (width, height) px
@@ -112,7 +112,7 @@ def test_animate_frame_rate(male50, poses, tmp_path):
     import imageio.v3 as iio
 
     assert frame_rate(TIMES, N) == pytest.approx(5.0)
-    assert frame_rate(None, N) == frame_rate(TIMES[::-1], N) == db._animate.DEFAULT_FPS
+    assert frame_rate(None, N) == frame_rate(TIMES[::-1], N) == DEFAULT_FPS
     gif = animate(male50, poses, tmp_path / "a.gif", times=TIMES, size=SIZE)
     assert iio.immeta(gif)["duration"] == 200  # ms per frame
     gif = animate(male50, poses, tmp_path / "b.gif", fps=20, size=SIZE, view="left")

@@ -25,9 +25,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._body import Body, Pose, without_names
-from ._kinematics import forward
-from ._render import _REGION_COLOURS, View, _region, camera
+from .._body import Body, Pose, without_names
+from .._kinematics import forward
+from .._render import View, camera, sphere_colours
 
 FORMATS = (".mp4", ".gif")
 DEFAULT_FPS = 10.0  # frames per second of a batch, whose poses have no times
@@ -158,7 +158,7 @@ def _raster_jit(shape, supersample, centers, basis, origin, ppm, radii, colours,
 
 def _frames(record_or_poses, body: Body, times) -> tuple[Pose, np.ndarray | None]:
     """The poses with a leading frame axis, and their times (s) or None."""
-    from .files._pose_file import PoseRecord
+    from ..files._pose_file import PoseRecord
 
     if isinstance(record_or_poses, PoseRecord):
         pose = record_or_poses.pose
@@ -311,9 +311,7 @@ def animate(
     per_metre = min(w / (hi[0] - lo[0]), h / (hi[1] - lo[1]))
     origin = (lo + hi) / 2 - np.array([w, h]) / (2 * per_metre)
     top = origin + np.array([w, h]) / per_metre
-    colours = np.array(
-        [_REGION_COLOURS[_region(body.segment_names[s])] for s in np.asarray(body.sphere_segment)]
-    )
+    colours = sphere_colours(body)
     k = SUPERSAMPLE
     raster = Raster.build(radii, colours, view, k * per_metre, origin, (k * h, k * w))
 
