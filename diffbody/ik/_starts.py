@@ -21,15 +21,16 @@ SPREAD = 1.3  # the starts' range of the free variables (sin map: +-96 % of each
 
 @functools.cache
 def halton(n_starts: int, dim: int) -> np.ndarray:
-    """(n_starts, dim) points of a Halton sequence in [-SPREAD, SPREAD] (row 0 unused).
+    """(n_starts, dim) points of the Halton sequence in [-SPREAD, SPREAD] (row 0 unused).
 
-    scipy's scrambled sequence (a fixed seed: the same starts for every problem). Unscrambled,
-    the bases of a whole-body problem's 100-odd variables are large primes, whose first 64
-    points k / p nearly coincide from one prime to the next: the starts would move those
-    variables together."""
+    scipy's unscrambled sequence: dimension d in base the d-th prime for any dim (no two
+    dimensions share a base). Scrambling would spread the large-prime dimensions of a
+    whole-body problem better over the first 64 points, but it would move every start of
+    the limb problems (9 to 20 variables) and with them the reaches that need a second
+    start: kept unscrambled, those are as before."""
     from scipy.stats import qmc  # on first use: importing scipy.stats costs a few tenths of a s
 
-    points = qmc.Halton(d=max(dim, 1), scramble=True, seed=0).random(n_starts)[:, :dim]
+    points = qmc.Halton(d=max(dim, 1), scramble=False).random(n_starts)[:, :dim]
     return SPREAD * (2.0 * points - 1.0)
 
 
