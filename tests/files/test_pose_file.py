@@ -16,10 +16,16 @@ import diffbody as db
 from diffbody.cli import main
 from diffbody.files import PoseFileError, structure_hash
 
+_SAMPLERS: dict = {}
+
 
 def _poses(body, n: int, seed: int = 0) -> db.Pose:
-    keys = jax.random.split(jax.random.PRNGKey(seed), n)
-    return jax.vmap(lambda k: db.sample_pose(body, k, spread=0.5))(keys)
+    """n sampled poses; one compiled sampler per body (`sample_pose` reads the body's limits
+    on the host, so the body is closed over, not traced)."""
+    if id(body) not in _SAMPLERS:
+        sample = jax.vmap(lambda k: db.sample_pose(body, k, spread=0.5))
+        _SAMPLERS[id(body)] = (body, jax.jit(sample))
+    return _SAMPLERS[id(body)][1](jax.random.split(jax.random.PRNGKey(seed), n))
 
 
 def _same(a: db.Pose, b: db.Pose) -> None:
