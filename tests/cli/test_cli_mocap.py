@@ -70,6 +70,11 @@ def test_mocap_command(trials, tmp_path, capsys):
     np.testing.assert_allclose(errors, gap, atol=1e-6)
     np.testing.assert_allclose(rms, np.sqrt(np.nanmean(gap**2, axis=1)), atol=1e-6)
     assert np.all(np.isfinite(record.pose.angles)) and np.all(np.asarray(record.scale["axial"]) > 0)
+    # The fit's pose file renders on its scaled body, a frame with its measured markers.
+    frame = tmp_path / "frame.png"
+    argv = ["render", "--pose", str(out), "--body", str(tmp_path / "fit.body.json")]
+    assert main(argv + ["--frame", "3", "--out", str(frame)]) == 0
+    assert frame.stat().st_size > 10_000
     assert (tmp_path / "fit.body.json").is_file() and png.stat().st_size > 0
     assert str(tmp_path / "fit.body.json") in text
 

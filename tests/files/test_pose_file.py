@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from bodies import mini_doc, write
-from command_line import fails
+from command_line import ARM_BATCH, arm_batch, fails
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -169,3 +169,18 @@ def test_a_float32_body_saves_and_loads_with_its_pose(male50, tmp_path):
     np.testing.assert_allclose(loaded.swing_hi, wide.swing_hi, atol=1e-6)
     pose = db.save_pose(tmp_path / "fitted.pose.json", loaded, loaded.rest_pose())
     assert db.load_pose(pose, loaded).body_name == loaded.name
+
+
+def test_the_batch_commands_postures_load_and_render(tmp_path, capsys):
+    """`diffbody batch` writes its postures beside the CSV: one row each, the status and
+    residuals of the CSV, the targets as overlays; a row renders."""
+    targets, results = tmp_path / "targets.csv", tmp_path / "results.csv"
+    targets.write_text("x,y,z\n0.3,0.2,1.0\n0.15,0.3,0.85\n")
+    assert main(arm_batch(targets, results) + ARM_BATCH) == 0
+    record = db.load_pose(tmp_path / "results.poses.npz", db.load_body())
+    assert record.kind == "batch" and record.n_frames == 2 and record.status == ("success",) * 2
+    assert np.all(record.residuals["targets"] < 1e-3)
+    np.testing.assert_allclose(record.overlays["targets"]["points"][1], [[0.15, 0.3, 0.85]])
+    png = tmp_path / "row1.png"
+    assert main(["render", "--pose", str(record.path), "--frame", "1", "--out", str(png)]) == 0
+    assert png.stat().st_size > 10_000

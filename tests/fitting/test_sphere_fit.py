@@ -80,6 +80,10 @@ def test_the_fit_command_on_noisy_clouds_with_outliers(male50, tmp_path, capsys)
         error = error[np.asarray(person.lengths) > 0]
         print(f"cloud {seed}: length error mean {1e3 * error.mean():.2f} mm")
         record = db.load_pose(tmp_path / f"fitted{seed}.pose.json", fitted)
+        if seed == 0:  # the pose file renders on the fitted body, with its cloud
+            drawn = tmp_path / "pose_file.png"
+            argv = ["render", "--pose", str(tmp_path / "fitted0.pose.json"), "--body", str(out)]
+            assert main(argv + ["--out", str(drawn)]) == 0 and drawn.stat().st_size > 10_000
         assert record.scale["groups"] == list(db.SCALE_GROUPS) and record.kind == "pose"
         assert len(record.scale["axial"]) == len(db.SCALE_GROUPS)
         # The command says when a fit did not land (too few inliers), and writes it.
