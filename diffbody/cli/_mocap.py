@@ -73,6 +73,11 @@ def add_mocap_command(sub) -> None:
     p.add_argument("--out", default="fit.npz", help="the fit's pose file (.npz, default fit.npz)")
     p.add_argument("--png", default=None, help="PNG of a few fitted frames with their markers")
     p.add_argument(
+        "--curves",
+        default=None,
+        help="PNG of the fit over time: hip, knee, ankle angles and the marker error per frame",
+    )
+    p.add_argument(
         "--mot", default=None, help="ISB joint angles of every frame, degrees (OpenSim .mot)"
     )
     p.add_argument("--trc", default=None, help="the model's markers of every frame (.trc)")
@@ -126,6 +131,7 @@ def _mocap(args) -> int:
     for flag, path, suffix in (
         ("--out", args.out, ".npz"),
         ("--png", args.png, ".png"),
+        ("--curves", args.curves, ".png"),
         ("--mot", args.mot, ".mot"),
         ("--trc", args.trc, ".trc"),
     ):
@@ -256,6 +262,11 @@ def _mocap(args) -> int:
     if args.png:
         picture(scaled, out, trial.positions, args.png, os.path.basename(args.motion))
         print(f"wrote {args.png}")
+    if args.curves:
+        from ..fitting._motion_plots import draw_motion
+
+        draw_motion(out, scaled, title=os.path.basename(args.motion), path=args.curves)
+        print(f"wrote {args.curves} (joint angles and marker error over time)")
     return 1 if np.any(status == FitStatus.FAILED) else 0
 
 

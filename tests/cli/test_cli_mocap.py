@@ -42,6 +42,8 @@ def test_mocap_command(trials, tmp_path, capsys):
     out, png = tmp_path / "fit.npz", tmp_path / "fit.png"
     mot, trc = tmp_path / "angles.mot", tmp_path / "model.trc"
     argv = ["mocap", str(trials[0]), str(trials[1]), "--no-prior", "--mot", str(mot)]
+    curves = tmp_path / "curves.png"
+    argv += ["--curves", str(curves)]
     assert main(argv + ["--out", str(out), "--png", str(png), "--trc", str(trc)]) == 0
     text = capsys.readouterr().out
     assert "4 frames" in text and "faulty markers: none" in text and "worst other marker:" in text
@@ -76,6 +78,7 @@ def test_mocap_command(trials, tmp_path, capsys):
     assert main(argv + ["--frame", "3", "--out", str(frame)]) == 0
     assert frame.stat().st_size > 10_000
     assert (tmp_path / "fit.body.json").is_file() and png.stat().st_size > 0
+    assert curves.stat().st_size > 10_000
     assert str(tmp_path / "fit.body.json") in text
 
 
