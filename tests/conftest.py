@@ -64,29 +64,3 @@ def pytest_collection_modifyitems(items):
     together instead of one waiting on a long test collected last."""
     first = ("test_notebooks.py", "test_readme.py")
     items.sort(key=lambda item: item.nodeid.split("::")[0].split("/")[-1] not in first)
-
-
-# A worker that has compiled hundreds of programs holds them all (jit's caches keep every
-# executable): past this much resident memory its caches are dropped, so that two workers
-# and one large compile stay inside CI's 24 GiB. What is dropped recompiles from the
-# persistent cache when a later test needs it.
-MEMORY_LIMIT = 6 * 2**30  # bytes per worker
-
-
-def _resident_bytes() -> int:
-    """This process's resident set size (Linux; 0 elsewhere)."""
-    try:
-        with open("/proc/self/statm") as f:
-            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-    except (OSError, ValueError, IndexError):
-        return 0
-
-
-@pytest.fixture(autouse=True)
-def _bounded_memory():
-    yield
-    if _resident_bytes() > MEMORY_LIMIT:
-        import gc
-
-        jax.clear_caches()
-        gc.collect()
