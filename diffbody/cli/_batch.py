@@ -55,28 +55,41 @@ def add_batch_command(sub) -> None:
 
 
 # --- the targets, read a chunk at a time ----------------------------------------------------
-def _target_lines(path: str, digest=None):
-    """The targets file's text lines, decoded one at a time (a UTF-8 byte-order mark
-    dropped); every byte read goes into `digest` (a hashlib object) when given."""
+def _target_lines(path: str, digest=None, block: int = 1 << 20):
+    """The targets file's text lines, decoded a block of whole lines at a time (a UTF-8
+    byte-order mark dropped); every byte read goes into `digest` (a hashlib object) when
+    given."""
     import codecs
     import io
     from pathlib import Path
 
     if Path(path).is_dir():
         raise ValueError(f"{path}: is a directory; expected a CSV file of targets")
+    lines_before, rest, first = 0, b"", True
     with open(path, "rb") as f:
-        for number, raw in enumerate(f, start=1):
+        while True:
+            read = f.read(block)
             if digest is not None:
-                digest.update(raw)
-            if number == 1 and raw.startswith(codecs.BOM_UTF8):
-                raw = raw[len(codecs.BOM_UTF8) :]  # a spreadsheet's byte-order mark is no data
+                digest.update(read)
+            if first and read.startswith(codecs.BOM_UTF8):
+                read = read[len(codecs.BOM_UTF8) :]  # a spreadsheet's byte-order mark is no data
+            first, data = False, rest + read
+            if not data:
+                return
+            # Whole lines only (so no character is cut either), all that is left at the end.
+            cut = data.rfind(b"\n") + 1 if read else len(data)
+            chunk, rest = data[:cut], data[cut:]
+            if not chunk:
+                continue
             try:
-                text = raw.decode("utf-8")
+                text = chunk.decode("utf-8")
             except UnicodeDecodeError as e:
+                line = lines_before + chunk[: e.start].count(b"\n") + 1
                 raise ValueError(
-                    f"{path}: row {number}: not UTF-8 text (byte {raw[e.start]:#04x}); "
+                    f"{path}: row {line}: not UTF-8 text (byte {chunk[e.start]:#04x}); "
                     "save the targets as a plain UTF-8 CSV"
                 ) from None
+            lines_before += chunk.count(b"\n")
             # A lone \r ends a line too (old spreadsheets), as when the file is read whole.
             yield from io.StringIO(text, newline="")
 
@@ -111,6 +124,15 @@ def _target_rows(path: str, k: int, digest=None):
     for row in reader:
         line = reader.line_num
         row = [c.strip() for c in row]
+        if len(row) == 3 * k:
+            try:  # the common row, all numbers: none of the checks below can fail it
+                values = [float(c) for c in row]
+            except ValueError:
+                pass
+            else:
+                n += 1
+                yield values
+                continue
         if not row or all(c == "" for c in row):
             continue
         for sep, name in ((";", "semicolons"), ("\t", "tabs")):
@@ -418,6 +440,8 @@ def _stream(args, body, fields, run: _Run, signals) -> int:
             run.done = _resume_point(out, fields, columns, chunk, total)
             print(f"resuming {out} after {run.done} of {total} rows")
         else:
+            if args.resume:
+                print(f"--resume: no {out} yet; starting from the first row")
             _remove_parts(parts, 0)
             _remove_file(poses)
             replace_atomically(out, header_text(fields, columns))

@@ -21,7 +21,7 @@ import diffbody as db
 from diffbody.cli._main import main
 from diffbody.files import structure_hash
 
-ROWS = 40  # 20 chunks of 2: the run is still going when its second chunk is written
+ROWS = 60  # 30 chunks of 2: the run is still going when its second chunk is written
 
 
 def write_targets(path, n=ROWS, seed=0):
@@ -142,11 +142,11 @@ def test_a_keyboard_interrupt_inside_a_solve_is_a_clean_stop(
 
     targets, reference = uninterrupted
     results = tmp_path / "results.csv"
-    solve, calls = reach_batch.solve_reach_batch, []
+    solve, calls, stop_at = reach_batch.solve_reach_batch, [], [3]
 
     def solve_then_stop(*args, **kwargs):
         calls.append(1)
-        if len(calls) == 3:
+        if len(calls) in stop_at:
             raise KeyboardInterrupt
         return solve(*args, **kwargs)
 
@@ -157,9 +157,18 @@ def test_a_keyboard_interrupt_inside_a_solve_is_a_clean_stop(
     err = capsys.readouterr().err
     assert f"interrupted after 4 of {ROWS} rows; {results} holds them" in err
     assert len(data_lines(results)) == 1 + 4
-    monkeypatch.setattr(reach_batch, "solve_reach_batch", solve)
-    assert main(arm_batch(targets, results) + ARM_BATCH + ["--resume"]) == 0
+    assert (tmp_path / "results.poses" / "part-00001.npz").exists()
+    stop_at.clear()
+    assert main(arm_batch(targets, results) + ARM_BATCH) == 0  # no --resume: starts over
     assert without_timestamp(results) == without_timestamp(reference)
+    assert not (tmp_path / "results.poses").exists()
+    assert len(calls) == 3 + ROWS // 2
+    # --resume of a complete run: nothing left to solve, the file as it was.
+    text = results.read_text()
+    assert main(arm_batch(targets, results) + ARM_BATCH + ["--resume"]) == 0
+    assert f"after {ROWS} of {ROWS} rows" in capsys.readouterr().out
+    assert results.read_text() == text and len(calls) == 3 + ROWS // 2
+    assert db.load_pose(tmp_path / "results.poses.npz").n_frames == ROWS
 
 
 def test_the_header_records_the_run(uninterrupted):
