@@ -216,3 +216,38 @@ def test_resume_refuses_a_different_run(uninterrupted, tmp_path, capsys, change,
     assert "rerun as it was begun, or without --resume to start over" in err
     assert err.count("changed") == 1  # only what changed is named
     assert results.read_text() == reference.read_text()
+
+
+def test_merged_postures_name_one_spine_target_for_every_row(male50, tmp_path):
+    """A chunk whose rows the limbs alone reached has no spine target; merged with a chunk
+    where the trunk moved, its rows get the start's spine, as one solve of all rows gives."""
+    from types import SimpleNamespace
+
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from diffbody.cli._batch import _merge_parts, _write_part
+
+    rest = male50.rest_pose()
+    assert rest.spine_target is None
+    two = jax.tree.map(lambda a: jnp.stack([a, a]), rest)
+    bent = jnp.asarray([[0.1, 0.0, 0.0], [0.2, 0.0, 0.0]])
+    with_spine = eqx.tree_at(lambda p: p.spine_target, two, bent, is_leaf=lambda x: x is None)
+    xyz = np.full((2, 1, 3), 0.3)
+    for index, pose in enumerate([two, with_spine]):
+        result = SimpleNamespace(
+            pose=pose,
+            status=np.zeros(2, int),
+            residuals=np.zeros((2, 1)),
+            reached=np.ones((2, 1), bool),
+            valid=np.ones((2, 1), bool),
+            steps=np.arange(2),
+        )
+        _write_part(str(tmp_path / "r.poses"), index, male50, result, xyz, ["left_hand.palm"])
+    _merge_parts(str(tmp_path / "r.poses"), 2, str(tmp_path / "r.poses.npz"), male50, ["x"])
+    merged = db.load_pose(tmp_path / "r.poses.npz", male50)
+    start = np.asarray(db.spine_angles(male50, male50.spine, rest).sum(0))
+    np.testing.assert_allclose(merged.pose.spine_target[:2], [start, start], atol=1e-12)
+    np.testing.assert_allclose(merged.pose.spine_target[2:], bent, atol=1e-12)
+    assert merged.n_frames == 4 and list(merged.extra["steps"]) == [0, 1, 0, 1]
