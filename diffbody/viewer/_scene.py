@@ -34,7 +34,7 @@ class Scene:
         each segment's (theta, phi, tau).
     markers: (n_frames, m, 3) m measured markers (NaN where a marker is missing), or None.
     cloud: (centers (c, 3) m, radii (c,) m, inliers (c,) bool) of a sphere cloud, or None.
-    targets: (k, 3) m, the targets of a reach, or None.
+    targets: (n_frames, k, 3) m, the targets of a reach (a batch: each row's), or None.
     """
 
     centers: np.ndarray
@@ -84,21 +84,21 @@ def panel_angles(body: Body, poses: Pose) -> tuple[tuple[str, ...], np.ndarray]:
     return names, np.stack([np.asarray(angles[n], float) for n in names], axis=-1)
 
 
-def _as_markers(markers: Any, n_frames: int) -> np.ndarray | None:
+def _per_frame(points: Any, n_frames: int, what: str, field: str) -> np.ndarray | None:
     """(n_frames, m, 3) from an (m, 3) set for every frame, an (n_frames, m, 3) array or a
-    pose file's markers overlay {names, positions}."""
-    if markers is None:
+    pose file's overlay (its points under `field`): markers, or a batch's row targets."""
+    if points is None:
         return None
-    if isinstance(markers, dict):
-        markers = markers["positions"]
-    markers = np.asarray(markers, float)
-    if markers.ndim == 2:
-        markers = np.broadcast_to(markers, (n_frames,) + markers.shape)
-    if markers.ndim != 3 or markers.shape[0] != n_frames or markers.shape[2] != 3:
+    if isinstance(points, dict):
+        points = points[field]
+    points = np.atleast_2d(np.asarray(points, float))
+    if points.ndim == 2:
+        points = np.broadcast_to(points, (n_frames,) + points.shape)
+    if points.ndim != 3 or points.shape[0] != n_frames or points.shape[2] != 3:
         raise ValueError(
-            f"view: markers of shape {markers.shape}; expected (m, 3) or ({n_frames}, m, 3) m"
+            f"view: {what} of shape {points.shape}; expected (m, 3) or ({n_frames}, m, 3) m"
         )
-    return markers
+    return points
 
 
 def _as_cloud(cloud: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -117,18 +117,6 @@ def _as_cloud(cloud: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
             f"{inliers.shape}; expected (c, 3), (c,) and (c,)"
         )
     return centers, radii, inliers
-
-
-def _as_targets(targets: Any) -> np.ndarray | None:
-    """(k, 3) from an array or a pose file's targets overlay {names, points}."""
-    if targets is None:
-        return None
-    if isinstance(targets, dict):
-        targets = targets["points"]
-    targets = np.atleast_2d(np.asarray(targets, float))
-    if targets.ndim != 2 or targets.shape[1] != 3:
-        raise ValueError(f"view: targets of shape {targets.shape}; expected (k, 3) m")
-    return targets
 
 
 def build_scene(
@@ -151,7 +139,7 @@ def build_scene(
         markers: (m, 3) or (n, m, 3) m, measured markers (NaN: missing), or a markers
             overlay {names, positions}.
         cloud: (centers (c, 3), radii (c,)[, inliers (c,)]) m, or a cloud overlay.
-        targets: (k, 3) m, or a targets overlay {names, points}.
+        targets: (k, 3) or (n, k, 3) m, or a targets overlay {names, points}.
 
     Returns:
         a `Scene`.
@@ -191,7 +179,7 @@ def build_scene(
         times=times,
         angle_names=names,
         angles_deg=values,
-        markers=_as_markers(markers, n),
+        markers=_per_frame(markers, n, "markers", "positions"),
         cloud=_as_cloud(cloud),
-        targets=_as_targets(targets),
+        targets=_per_frame(targets, n, "targets", "points"),
     )

@@ -142,6 +142,7 @@ class Viewer:
 
         self._body = _spheres(scene_api, "/body", s.centers[0], s.radii[0], s.colours)
         self.overlays = overlays = {}
+        self._markers = self._targets = None
         if s.markers is not None:
             self._markers = _spheres(
                 scene_api, "/markers", *_gaps_hidden(s.markers[0], MARKER_RADIUS), MARKER_COLOUR
@@ -154,13 +155,10 @@ class Viewer:
                 scene_api, "/cloud", centers, radii, colours, opacity=0.35, wireframe=True
             )
         if s.targets is not None:
-            overlays["targets"] = _spheres(
-                scene_api,
-                "/targets",
-                s.targets,
-                np.full(len(s.targets), TARGET_RADIUS),
-                TARGET_COLOUR,
+            self._targets = _spheres(
+                scene_api, "/targets", *_gaps_hidden(s.targets[0], TARGET_RADIUS), TARGET_COLOUR
             )
+            overlays["targets"] = self._targets
 
         self._slider = self._time = self._playing = None
         if s.n_frames > 1:
@@ -190,10 +188,14 @@ class Viewer:
             with self.server.atomic():
                 self._body.batched_positions = s.centers[i].astype(np.float32)
                 self._body.batched_scales = s.radii[i].astype(np.float32)
-                if s.markers is not None:
-                    positions, scales = _gaps_hidden(s.markers[i], MARKER_RADIUS)
-                    self._markers.batched_positions = positions.astype(np.float32)
-                    self._markers.batched_scales = scales.astype(np.float32)
+                for points, handle, radius in (
+                    (s.markers, self._markers, MARKER_RADIUS),
+                    (s.targets, self._targets, TARGET_RADIUS),
+                ):
+                    if handle is not None:
+                        positions, scales = _gaps_hidden(points[i], radius)
+                        handle.batched_positions = positions.astype(np.float32)
+                        handle.batched_scales = scales.astype(np.float32)
                 if self._time is not None:
                     self._time.value = f"{s.times[i]:.3f}"
                 self._angles.content = angle_table(s.angle_names, s.angles_deg[i])
@@ -259,7 +261,7 @@ def view(
         markers: (m, 3) or (n, m, 3) m, measured markers (NaN: missing).
         cloud: (centers (c, 3), radii (c,)[, inliers (c,) bool]) m, a measured sphere cloud
             (outliers in red).
-        targets: (k, 3) m, the targets of a reach.
+        targets: (k, 3) or (n, k, 3) m, the targets of a reach (a batch: each row's).
         port: the port to serve on; taken, the next free one is used (0: any free port).
         host: the interface to serve on ("0.0.0.0": every one, for another machine).
         title: shown over the panel.

@@ -3,6 +3,8 @@ browser."""
 
 import sys
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -64,7 +66,7 @@ def test_overlays_of_the_pose_file_are_drawn(scene):
     assert scene.markers.shape == (5, 2, 3) and np.isnan(scene.markers[2, 1]).all()
     centers, radii, inliers = scene.cloud
     assert centers.shape == (2, 3) and list(inliers) == [True, False]
-    np.testing.assert_allclose(scene.targets, [[0.5, 0.3, 1.5]])
+    np.testing.assert_allclose(scene.targets, np.tile([[0.5, 0.3, 1.5]], (5, 1, 1)))
 
 
 def test_one_pose_and_given_overlays(male50):
@@ -107,3 +109,15 @@ def test_served_scene_follows_the_frame(male50, record, scene):
         np.testing.assert_allclose(viewer._body.batched_positions, scene.centers[0], atol=1e-6)
         with pytest.raises(IndexError, match="frame 5 of 5"):
             viewer.set_frame(5)
+
+
+def test_a_batch_shows_each_rows_targets(male50):
+    """The batch command's postures carry one target per row (n, k, 3): the scene keeps
+    them per frame (regression: it refused them)."""
+    poses = jax.tree.map(lambda a: jnp.stack([a, a, a]), male50.rest_pose())
+    points = np.arange(9.0).reshape(3, 1, 3)
+    scene = build_scene(male50, poses, targets={"names": ["left_hand.palm"], "points": points})
+    assert scene.kind == "batch"
+    np.testing.assert_array_equal(scene.targets, points)
+    with pytest.raises(ValueError, match="targets of shape"):
+        build_scene(male50, poses, targets=np.zeros((2, 1, 3)))
