@@ -1,0 +1,253 @@
+"""`diffbody batch` on long runs: results written a chunk at a time, interrupts that keep
+every finished chunk, and `--resume` that gives the rows of an uninterrupted run.
+
+The signals need a process of their own: `python -m diffbody batch` with the tests'
+environment (its compilation cache and XLA flags) and float64, so that its rows are those of
+the in-process runs. Those (diffbody.cli._main.main) are the cheaper rest.
+"""
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from command_line import ARM_BATCH, arm_batch
+
+import diffbody as db
+from diffbody.cli._main import main
+from diffbody.files import structure_hash
+
+ROWS = 60  # 30 chunks of 2: the run is still going when its second chunk is written
+
+
+def write_targets(path, n=ROWS, seed=0):
+    """n targets around the left palm's reach, some beyond it, with a header."""
+    rng = np.random.default_rng(seed)
+    points = np.array([0.3, 0.2, 1.0]) + rng.uniform(-0.12, 0.12, (n, 3))
+    path.write_text("x,y,z\n" + "".join(",".join(f"{v:.4f}" for v in p) + "\n" for p in points))
+    return path
+
+
+def data_lines(path):
+    """The results file's lines after the `#` header (column names first)."""
+    return [line for line in path.read_text().splitlines(True) if not line.startswith("#")]
+
+
+def without_timestamp(path):
+    """The file's text without its `# begun:` line, the one line two runs may differ in."""
+    lines = path.read_text().splitlines(True)
+    assert sum(line.startswith("# begun: ") for line in lines) == 1
+    return "".join(line for line in lines if not line.startswith("# begun: "))
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    """The targets and the results file and postures of a run that was never stopped."""
+    folder = tmp_path_factory.mktemp("uninterrupted")
+    targets = write_targets(folder / "targets.csv")
+    results = folder / "results.csv"
+    assert main(arm_batch(targets, results) + ARM_BATCH) == 0
+    return targets, results
+
+
+def start(targets, results, *extra):
+    """`diffbody batch` in a process of its own, float64 as the tests run."""
+    env = dict(os.environ, JAX_ENABLE_X64="1")
+    argv = [sys.executable, "-m", "diffbody"] + arm_batch(targets, results) + ARM_BATCH
+    return subprocess.Popen(
+        argv + list(extra), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+
+
+def stop_after(process, results, rows, signum):
+    """Send `signum` once `results` holds `rows` rows; the process's exit status, stdout and
+    stderr. The run must still be going then (else the test proves nothing)."""
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and process.poll() is None:
+        if results.exists() and len(data_lines(results)) - 1 >= rows:
+            break
+        time.sleep(0.01)
+    assert process.poll() is None, process.communicate()
+    process.send_signal(signum)
+    out, err = process.communicate(timeout=120)
+    return process.returncode, out, err
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_an_interrupted_run_keeps_its_chunks_and_resumes(
+    uninterrupted, tmp_path, capsys, signum, code
+):
+    targets, reference = uninterrupted
+    results = tmp_path / "results.csv"
+    status, _, err = stop_after(start(targets, results), results, 4, signum)
+    assert status == code, err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err
+    done = len(data_lines(results)) - 1
+    assert 4 <= done < ROWS and done % 2 == 0
+    message = f"interrupted after {done} of {ROWS} rows; {results} holds them; rerun with --resume"
+    assert message in err
+    parts = sorted(os.listdir(tmp_path / "results.poses"))
+    assert parts == [f"part-{i:05d}.npz" for i in range(done // 2)]
+    assert not (tmp_path / "results.poses.npz").exists()
+    assert db.load_pose(tmp_path / "results.poses" / "part-00001.npz").n_frames == 2
+
+    assert main(arm_batch(targets, results) + ARM_BATCH + ["--resume"]) == 0
+    out = capsys.readouterr().out
+    assert f"resuming {results} after {done} of {ROWS} rows" in out
+    assert without_timestamp(results) == without_timestamp(reference)
+    assert not (tmp_path / "results.poses").exists()
+    merged = db.load_pose(tmp_path / "results.poses.npz")
+    expected = db.load_pose(reference.with_name("results.poses.npz"))
+    assert merged.n_frames == ROWS and merged.status == expected.status
+    np.testing.assert_array_equal(merged.pose.angles, expected.pose.angles)
+    np.testing.assert_array_equal(merged.extra["steps"], expected.extra["steps"])
+
+
+def test_a_killed_run_leaves_whole_rows_and_resumes(uninterrupted, tmp_path, capsys):
+    """SIGKILL gives the run no say: what it leaves is whole rows; a partial last line and
+    rows beyond the last whole chunk (as a crash in the middle of a write could leave) are
+    cut off by --resume, a half-written part removed, and the run completed."""
+    targets, reference = uninterrupted
+    results = tmp_path / "results.csv"
+    status, _, _ = stop_after(start(targets, results), results, 4, signal.SIGKILL)
+    assert status == -signal.SIGKILL
+    lines = data_lines(results)
+    assert lines[0].startswith("row,") and all(line.endswith("\n") for line in lines)
+    rows = list(csv.DictReader(lines))
+    assert len(rows) >= 4 and [r["row"] for r in rows] == [str(i) for i in range(len(rows))]
+    for r in rows:
+        assert None not in r and None not in r.values()  # every column, none more
+        assert float(r["left_hand.palm.residual"]) >= 0 and r["status"]
+
+    whole = len(rows) - len(rows) % 2
+    with results.open("a") as f:  # one row of the next chunk, and half a row after it
+        f.write(f"{whole},0.5,0,1,unreachable,30\n{whole + 1},0.0")
+    (tmp_path / "results.poses" / f"part-{whole // 2:05d}.partial.npz").write_bytes(b"PK")
+    assert main(arm_batch(targets, results) + ARM_BATCH + ["--resume"]) == 0
+    assert f"after {whole} of {ROWS} rows" in capsys.readouterr().out
+    assert without_timestamp(results) == without_timestamp(reference)
+    assert not (tmp_path / "results.poses").exists()
+
+
+def test_a_keyboard_interrupt_inside_a_solve_is_a_clean_stop(
+    uninterrupted, tmp_path, capsys, monkeypatch
+):
+    """A KeyboardInterrupt from inside a chunk's solve (not through the command's handler)
+    drops that chunk, keeps the finished ones, and says so; the handlers are put back."""
+    import diffbody.ik._reach_batch as reach_batch
+
+    targets, reference = uninterrupted
+    results = tmp_path / "results.csv"
+    solve, calls, stop_at = reach_batch.solve_reach_batch, [], [3]
+
+    def solve_then_stop(*args, **kwargs):
+        calls.append(1)
+        if len(calls) in stop_at:
+            raise KeyboardInterrupt
+        return solve(*args, **kwargs)
+
+    monkeypatch.setattr(reach_batch, "solve_reach_batch", solve_then_stop)
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    assert main(arm_batch(targets, results) + ARM_BATCH) == 130
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+    err = capsys.readouterr().err
+    assert f"interrupted after 4 of {ROWS} rows; {results} holds them" in err
+    assert len(data_lines(results)) == 1 + 4
+    assert (tmp_path / "results.poses" / "part-00001.npz").exists()
+    stop_at.clear()
+    assert main(arm_batch(targets, results) + ARM_BATCH) == 0  # no --resume: starts over
+    assert without_timestamp(results) == without_timestamp(reference)
+    assert not (tmp_path / "results.poses").exists()
+    assert len(calls) == 3 + ROWS // 2
+    # --resume of a complete run: nothing left to solve, the file as it was.
+    text = results.read_text()
+    assert main(arm_batch(targets, results) + ARM_BATCH + ["--resume"]) == 0
+    assert f"after {ROWS} of {ROWS} rows" in capsys.readouterr().out
+    assert results.read_text() == text and len(calls) == 3 + ROWS // 2
+    assert db.load_pose(tmp_path / "results.poses.npz").n_frames == ROWS
+
+
+def test_the_header_records_the_run(uninterrupted):
+    import hashlib
+
+    targets, reference = uninterrupted
+    lines = reference.read_text().splitlines()
+    header = dict(line[2:].split(": ", 1) for line in lines if line.startswith("# "))
+    assert header["format"] == "diffbody.batch/1" and header["rows"] == str(ROWS)
+    assert header["input-sha256"] == hashlib.sha256(targets.read_bytes()).hexdigest()
+    assert header["body"] == "male50"
+    assert header["body-structure"] == structure_hash(db.load_body())
+    assert header["effectors"] == "left_hand.palm" and header["chunk-size"] == "2"
+    assert header["segments"] == "left_upper_arm left_forearm left_hand"
+    assert header["starts"] == "1" and header["spine"] == "on" and header["float"] == "float64"
+    assert lines[len(header)].startswith("row,left_hand.palm.residual,")
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ("input", "the input file changed (sha256 "),
+        (["--variant", "female50"], "the body changed (male50: structure"),
+        (["--starts", "2"], "--starts changed from 1 to 2"),
+        (["--chunk-size", "4"], "--chunk-size changed from 2 to 4"),
+        (["--segments", "left_forearm", "left_hand"], "--segments changed from left_upper_arm"),
+        (["--no-spine"], "the spine (--no-spine) changed from on to off"),
+    ],
+)
+def test_resume_refuses_a_different_run(uninterrupted, tmp_path, capsys, change, message):
+    """--resume of a file begun with other targets, body or settings is refused before any
+    solve, naming what changed, and the file is left as it was."""
+    targets, reference = uninterrupted
+    results = tmp_path / "results.csv"
+    results.write_text(reference.read_text())
+    argv = arm_batch(targets, results) + ARM_BATCH
+    if change == "input":
+        changed = write_targets(tmp_path / "targets.csv", seed=1)
+        argv = arm_batch(changed, results) + ARM_BATCH
+    else:
+        argv += change  # argparse: the last --starts / --chunk-size / --segments wins
+    assert main(argv + ["--resume"]) == 2
+    err = capsys.readouterr().err
+    assert f"diffbody: error: --resume {results}: {message}" in err, err
+    assert "rerun as it was begun, or without --resume to start over" in err
+    assert err.count("changed") == 1  # only what changed is named
+    assert results.read_text() == reference.read_text()
+
+
+def test_merged_postures_name_one_spine_target_for_every_row(male50, tmp_path):
+    """A chunk whose rows the limbs alone reached has no spine target; merged with a chunk
+    where the trunk moved, its rows get the start's spine, as one solve of all rows gives."""
+    from types import SimpleNamespace
+
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from diffbody.cli._batch import _merge_parts, _write_part
+
+    rest = male50.rest_pose()
+    assert rest.spine_target is None
+    two = jax.tree.map(lambda a: jnp.stack([a, a]), rest)
+    bent = jnp.asarray([[0.1, 0.0, 0.0], [0.2, 0.0, 0.0]])
+    with_spine = eqx.tree_at(lambda p: p.spine_target, two, bent, is_leaf=lambda x: x is None)
+    xyz = np.full((2, 1, 3), 0.3)
+    for index, pose in enumerate([two, with_spine]):
+        result = SimpleNamespace(
+            pose=pose,
+            status=np.zeros(2, int),
+            residuals=np.zeros((2, 1)),
+            reached=np.ones((2, 1), bool),
+            valid=np.ones((2, 1), bool),
+            steps=np.arange(2),
+        )
+        _write_part(str(tmp_path / "r.poses"), index, male50, result, xyz, ["left_hand.palm"])
+    _merge_parts(str(tmp_path / "r.poses"), 2, str(tmp_path / "r.poses.npz"), male50, ["x"])
+    merged = db.load_pose(tmp_path / "r.poses.npz", male50)
+    start = np.asarray(db.spine_angles(male50, male50.spine, rest).sum(0))
+    np.testing.assert_allclose(merged.pose.spine_target[:2], [start, start], atol=1e-12)
+    np.testing.assert_allclose(merged.pose.spine_target[2:], bent, atol=1e-12)
+    assert merged.n_frames == 4 and list(merged.extra["steps"]) == [0, 1, 0, 1]
