@@ -14,6 +14,7 @@ Each chunk's rows go to the file in one write, then flush and fsync: a killed pr
 at most a final partial line, which `read_results` does not count.
 """
 
+import hashlib
 import os
 import signal
 import threading
@@ -22,18 +23,28 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 
 
-class Interrupted(BaseException):
-    """SIGINT or SIGTERM during a run under `Interrupts` (a BaseException, as
-    KeyboardInterrupt is, so that no `except Exception` on the way swallows it)."""
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM during a run under `Interrupts`: a KeyboardInterrupt (so that no
+    `except Exception` on the way swallows it, and a notebook stops as on Ctrl-C). A run
+    that kept its finished chunks raises it again with `done` of `total` rows (or trials)
+    and the file `out` that holds them, and says so."""
 
-    def __init__(self, signum: int):
-        super().__init__(signum)
-        self.signum = signum
+    def __init__(self, signum: int, done: int = 0, total: int = 0, out: str | None = None):
+        super().__init__(signum, done, total, out)
+        self.signum, self.done, self.total, self.out = signum, done, total, out
 
     @property
     def code(self) -> int:
         """The shell's exit status of a process ended by the signal: 128 + its number."""
         return 128 + self.signum
+
+    def __str__(self) -> str:
+        if self.out is None:
+            return f"interrupted by signal {self.signum}"
+        return (
+            f"interrupted after {self.done} of {self.total} rows; {self.out} holds them; "
+            "call again with resume=True (the command line: --resume)"
+        )
 
 
 class Interrupts:
@@ -74,6 +85,24 @@ class Interrupts:
             self._holding -= 1
         if self._taken is not None and not self._holding:
             raise Interrupted(self._taken)
+
+
+def tree_hash(tree) -> str:
+    """16 hex digits naming a pytree's arrays (each as float32 where floating, so that the
+    name does not depend on JAX's precision setting) and its structure: a body's dimensions,
+    a start pose, a list of constraints."""
+    import equinox as eqx
+    import jax
+    import numpy as np
+
+    arrays, rest = eqx.partition(tree, eqx.is_array)
+    digest = hashlib.sha256(str(jax.tree.structure(rest)).encode())
+    for leaf in jax.tree.leaves(arrays):
+        a = np.asarray(leaf)
+        a = a.astype(np.float32) if np.issubdtype(a.dtype, np.floating) else a
+        digest.update(f"{a.dtype}{a.shape}".encode())
+        digest.update(np.ascontiguousarray(a).tobytes())
+    return digest.hexdigest()[:16]
 
 
 def fsync_file(path: str) -> None:

@@ -1,15 +1,10 @@
 """Batch reach: many position-target problems through one compiled, vmapped solve
-(docs/design.md, section 6).
-
-Single process: the batch axis of every chunk is sharded over the local devices when there
-is more than one (`jax.sharding.Mesh` + `NamedSharding(mesh, PartitionSpec("batch"))`).
-Several hosts: call `jax.distributed.initialize()` first, then the same `solve_reach_batch`
-in every process with that process's own rows; each process solves its rows on its local
-devices (the problems are independent, so no data crosses hosts), and JAX's runtime does the
-rest. There is no cluster layer here.
+(docs/design.md, section 6). The batch axis of every chunk is sharded over the local devices
+when there are several; written to a file as it goes and over processes: `_batch_run`.
 """
 
 import functools
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -22,7 +17,9 @@ from jaxtyping import Array, ArrayLike
 from .._batches import chunk_rows, map_chunks, row_sharding
 from .._body import Body, Pose
 from .._spine import spine_angles
+from ..files._targets_file import read_targets
 from ._attempt import Attempt, attempt_round, better, phase_steps, round_caps
+from ._batch_run import BatchRun, stream_reach_batch
 from ._constraints import is_constraint, pose_violations
 from ._phases import closed_form, is_none, phase_layouts, phase_plan, phase_targets_of
 from ._post_projection import finish, needs_projection, twists_to_keep
@@ -68,8 +65,10 @@ RETRY_ROWS = 64
 def solve_reach_batch(
     body: Body,
     effectors: Sequence[str],
-    positions: ArrayLike,
+    positions: ArrayLike | str | os.PathLike,
     *,
+    out: str | os.PathLike | None = None,
+    resume: bool = False,
     init: Pose | None = None,
     chunk_size: int = 4096,
     progress: bool = True,
@@ -81,7 +80,7 @@ def solve_reach_batch(
     starts: int = 8,
     max_steps: int = 30,
     tol_position: float = 1e-3,
-) -> ReachResult:
+) -> ReachResult | BatchRun:
     """Solve many reach problems: row i puts `effectors[j]` at `positions[i, j]`.
 
     The same problem as `solve_reach` with position targets only, vmapped: the rows go
@@ -97,13 +96,20 @@ def solve_reach_batch(
     Args:
         body: the body.
         effectors: k joint / feature names or "center_of_gravity".
-        positions: (n, k, 3) metres, or (n, 3) for one effector.
+        positions: (n, k, 3) metres, or (n, 3) for one effector; or a file of them (CSV
+            of x,y,z per effector, a header row optional, or Parquet with pyarrow).
+        out: a results CSV to write as the run goes (its postures beside it,
+            results.poses.npz): chunk by chunk, each written whole, a file read a chunk at
+            a time, memory flat in the rows; an interrupt keeps every finished chunk
+            (`Interrupted`, a KeyboardInterrupt, says how far). Under `jax.distributed`
+            each process solves its share and process 0 merges them. Returns a `BatchRun`.
+        resume: with `out`, go on after its last finished chunk; refused (ValueError naming
+            what changed) when the input, the body or a setting differs.
         init: the starting pose of every row (default: the standard position).
         chunk_size: rows per compiled call (rounded up to a multiple of the device count).
         progress: print a progress bar to stderr.
         devices: devices to shard each chunk's rows over (default: `jax.local_devices()`;
-            sharding is used when there are several). Multi-host: call
-            `jax.distributed.initialize()` first, then this in every process with its rows.
+            sharding is used when there are several).
         spine, standing, segments, starts, max_steps, tol_position: as in `solve_reach`.
         constraints: `Target.no_contact(...)`, `.on_floor(...)`, `.balance(...)`, held by
             every row (the floor places from `init`).
@@ -111,28 +117,23 @@ def solve_reach_batch(
     Returns:
         A `ReachResult` of host (numpy) arrays with a leading batch axis n: `reached`,
         `residuals`, `valid`, `beyond` (n, k), `status`, `steps` (n,), `violation`
-        (n, n_constraints), and the poses.
+        (n, n_constraints), and the poses. With `out`: a `BatchRun` (the files written).
 
     Raises:
         KeyError: an unknown effector (the message lists the valid ones).
         ValueError: positions of the wrong shape.
     """
-    s = _prepare(
-        body,
-        effectors,
-        positions,
-        init=init,
-        chunk_size=chunk_size,
-        progress=progress,
-        devices=devices,
-        spine=spine,
-        standing=standing,
-        constraints=constraints,
-        segments=segments,
-        starts=starts,
-        max_steps=max_steps,
-        tol_position=tol_position,
-    )
+    settings = dict(init=init, spine=spine, standing=standing, constraints=constraints)
+    settings.update(segments=segments, starts=starts, max_steps=max_steps, devices=devices)
+    settings.update(chunk_size=chunk_size, progress=progress, tol_position=tol_position)
+    effectors = [effectors] if isinstance(effectors, str) else list(effectors)
+    if out is not None:  # the settings checked before a file is begun
+        _prepare(body, effectors, np.zeros((1, len(effectors), 3)), **settings)
+        stream = functools.partial(stream_reach_batch, solve_reach_batch, body, effectors)
+        return stream(positions, out, resume=resume, **settings)
+    if isinstance(positions, (str, os.PathLike)):  # read whole
+        positions = read_targets(positions, len(effectors))
+    s = _prepare(body, effectors, positions, **settings)
     if not len(s.xyz):
         return _empty_result(s)
     best, steps, beyond = _solve_rows(s)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from command_line import ARM_BATCH, arm_batch, fails
 
-from diffbody.cli._batch import _read_targets
 from diffbody.cli._main import main
+from diffbody.files._targets_file import read_targets
 
 REACH = ["reach", "--effector", "left_hand.palm", "--target", "0.3", "0.2", "1.0"]
 
@@ -81,13 +81,13 @@ def test_a_good_targets_csv_parses(tmp_path):
         "\ufeff\nleft.x, left.y, left.z,right.x,right.y,right.z\r\n\r\n"
         "0.3, 0.2, 1.0, 0.3,-0.2,1.0\r\n-1e-1,0,2,0.1,0.1,0.1\r\n".encode()
     )
-    xyz = _read_targets(str(targets), 2)
+    xyz = read_targets(str(targets), 2)
     assert xyz.shape == (2, 2, 3)
     np.testing.assert_array_equal(xyz[1], [[-0.1, 0.0, 2.0], [0.1, 0.1, 0.1]])
     plain = tmp_path / "plain.csv"
     plain.write_text("0.3,0.2,1.0\n0.15,0.3,0.85")  # no header, no final newline
     expected = [[0.3, 0.2, 1.0], [0.15, 0.3, 0.85]]
-    np.testing.assert_array_equal(_read_targets(str(plain), 1)[:, 0], expected)
+    np.testing.assert_array_equal(read_targets(str(plain), 1)[:, 0], expected)
 
 
 @pytest.mark.parametrize(
@@ -205,13 +205,13 @@ def test_a_missing_value_passes_through_as_an_invalid_row(tmp_path, capsys):
     the rows around it are solved as usual."""
     targets, results = tmp_path / "gaps.csv", tmp_path / "results.csv"
     targets.write_text("0.3,nan,1.0\n0.3,0.2,1.0\n0.3,0.2,-inf\n0.3,0.2,1e999\n")
-    xyz = _read_targets(str(targets), 1)
+    xyz = read_targets(str(targets), 1)
     finite = np.isfinite(xyz).all(axis=(1, 2))
     assert xyz.shape == (4, 1, 3) and finite.tolist() == [False, True, False, False]
     assert main(arm_batch(targets, results) + ARM_BATCH) == 0
     assert "1 of 4 rows reached" in capsys.readouterr().out
-    with results.open(newline="") as f:
-        rows = list(csv.DictReader(f))
+    with results.open(newline="") as f:  # the `#` lines: what produced the file
+        rows = list(csv.DictReader(line for line in f if not line.startswith("#")))
     assert [r["row"] for r in rows] == ["0", "1", "2", "3"]
     assert [r["status"] for r in rows] == ["invalid_target", "success"] + ["invalid_target"] * 2
     assert [r["left_hand.palm.valid"] for r in rows] == ["0", "1", "0", "0"]

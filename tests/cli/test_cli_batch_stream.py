@@ -227,7 +227,7 @@ def test_merged_postures_name_one_spine_target_for_every_row(male50, tmp_path):
     import jax
     import jax.numpy as jnp
 
-    from diffbody.cli._batch import _merge_parts, _write_part
+    from diffbody.ik._batch_run import _merge_postures, _write_part
 
     rest = male50.rest_pose()
     assert rest.spine_target is None
@@ -245,9 +245,100 @@ def test_merged_postures_name_one_spine_target_for_every_row(male50, tmp_path):
             steps=np.arange(2),
         )
         _write_part(str(tmp_path / "r.poses"), index, male50, result, xyz, ["left_hand.palm"])
-    _merge_parts(str(tmp_path / "r.poses"), 2, str(tmp_path / "r.poses.npz"), male50, ["x"])
+    _merge_postures(str(tmp_path / "r.poses"), 2, str(tmp_path / "r.poses.npz"), male50, ["x"])
     merged = db.load_pose(tmp_path / "r.poses.npz", male50)
     start = np.asarray(db.spine_angles(male50, male50.spine, rest).sum(0))
     np.testing.assert_allclose(merged.pose.spine_target[:2], [start, start], atol=1e-12)
     np.testing.assert_allclose(merged.pose.spine_target[2:], bent, atol=1e-12)
     assert merged.n_frames == 4 and list(merged.extra["steps"]) == [0, 1, 0, 1]
+
+
+ARM = dict(segments=["left_upper_arm", "left_forearm", "left_hand"], starts=1, chunk_size=2)
+
+
+def test_python_writes_the_same_file_and_resumes(uninterrupted, tmp_path, monkeypatch):
+    """`solve_reach_batch(..., out=)` writes the command's file; a KeyboardInterrupt inside
+    a chunk's solve keeps the finished chunks and says how far (`Interrupted`, a
+    KeyboardInterrupt); `resume=True` completes it; a changed setting is refused by its
+    keyword."""
+    import diffbody.ik._reach_batch as reach_batch
+    from diffbody._streaming import Interrupted
+
+    targets, reference = uninterrupted
+    results = tmp_path / "results.csv"
+    body = db.load_body()
+    solve, calls = reach_batch.solve_reach_batch, []
+
+    def solve_then_stop(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return solve(*args, **kwargs)
+
+    monkeypatch.setattr(reach_batch, "solve_reach_batch", solve_then_stop)
+    with pytest.raises(KeyboardInterrupt) as stopped:
+        db.solve_reach_batch(body, ["left_hand.palm"], targets, out=results, progress=False, **ARM)
+    assert isinstance(stopped.value, Interrupted) and stopped.value.done == 4
+    assert f"interrupted after 4 of {ROWS} rows; {results} holds them" in str(stopped.value)
+    with pytest.raises(ValueError, match="starts= changed from 1 to 2; rerun as it was begun"):
+        db.solve_reach_batch(
+            body, ["left_hand.palm"], targets, out=results, resume=True, **(ARM | {"starts": 2})
+        )
+    run = db.solve_reach_batch(
+        body, ["left_hand.palm"], targets, out=results, resume=True, progress=False, **ARM
+    )
+    assert (run.rows, run.solved, run.out) == (ROWS, ROWS - 4, str(results))
+    assert without_timestamp(results) == without_timestamp(reference)
+    assert run.load().n_frames == ROWS and run.reached == int(np.sum(run.load().extra["reached"]))
+
+
+def test_parquet_targets_give_the_csv_rows(uninterrupted, tmp_path):
+    """A Parquet file of the same targets: the same result rows, read a record batch at a
+    time; a Parquet file with a text column is refused naming it."""
+    pa = pytest.importorskip("pyarrow")
+    import pyarrow.parquet as pq
+
+    from diffbody.files._targets_file import read_targets
+
+    targets, reference = uninterrupted
+    xyz = read_targets(targets, 1)[:, 0]
+    table = pa.table({name: xyz[:, i] for i, name in enumerate("xyz")})
+    pq.write_table(table, tmp_path / "targets.parquet", row_group_size=7)
+    results = tmp_path / "results.csv"
+    assert main(arm_batch(tmp_path / "targets.parquet", results) + ARM_BATCH) == 0
+    assert data_lines(results) == data_lines(reference)
+    bad = pa.table({"x": ["a"], "y": [0.2], "z": [1.0]})
+    pq.write_table(bad, tmp_path / "bad.parquet")
+    with pytest.raises(ValueError, match=r"bad.parquet: column 1 \(x\): string, not numbers"):
+        read_targets(tmp_path / "bad.parquet", 1)
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
+
+
+def test_two_processes_merge_to_the_one_process_file(uninterrupted, tmp_path):
+    """Two processes on this machine through jax.distributed (CPU, gloo): each solves half
+    the chunks into its own part, process 0 merges them; the result is the one-process
+    file row for row, and the postures the same."""
+    targets, reference = uninterrupted
+    results = tmp_path / "results.csv"
+    address = f"localhost:{free_port()}"
+    processes = [
+        start(targets, results, "--coordinator", address, "--num-processes", "2",
+              "--process-id", str(i))
+        for i in range(2)
+    ]  # fmt: skip
+    for i, p in enumerate(processes):
+        out, err = p.communicate(timeout=600)
+        assert p.returncode == 0, err
+        assert f"process {i} of 2" in out
+    assert without_timestamp(results) == without_timestamp(reference)
+    assert sorted(os.listdir(tmp_path)) == ["results.csv", "results.poses.npz"]
+    merged = db.load_pose(tmp_path / "results.poses.npz")
+    expected = db.load_pose(reference.with_name("results.poses.npz"))
+    np.testing.assert_array_equal(merged.pose.angles, expected.pose.angles)
