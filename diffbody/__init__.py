@@ -84,8 +84,10 @@ _FAMILIES = {
         "MotionFit",
         "SphereFit",
         "StaticFit",
+        "TrialsSummary",
         "draw_motion",
         "fit_motion",
+        "fit_trials",
         "fit_spheres",
         "fit_spheres_batch",
         "load_markerset",
@@ -144,11 +146,7 @@ _FAMILIES = {
         "webb",
         "write_joint_tree",
     ),
-    "viewer": (
-        "Viewer",
-        "animate",
-        "view",
-    ),
+    "viewer": ("Viewer", "animate", "view"),
 }
 _LAZY = {name: family for family, names in _FAMILIES.items() for name in names}
 
@@ -221,11 +219,13 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         MotionFit,
         SphereFit,
         StaticFit,
+        TrialsSummary,
         c3d_screen_axes,
         draw_motion,
         fit_motion,
         fit_spheres,
         fit_spheres_batch,
+        fit_trials,
         load_markerset,
         load_opensim_markerset,
         match_markers,
@@ -281,11 +281,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         webb,
         write_joint_tree,
     )
-    from .viewer import (
-        Viewer,
-        animate,
-        view,
-    )
+    from .viewer import Viewer, animate, view
 
 __version__ = "0.1.0"
 
@@ -385,6 +381,8 @@ __all__ = [
     "MotionFit",
     "scale_and_register",
     "fit_motion",
+    "fit_trials",
+    "TrialsSummary",
     "draw_motion",
     "descriptors",
     "motion_limits",

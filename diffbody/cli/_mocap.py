@@ -4,10 +4,18 @@ every frame of a motion trial, write the fit (a pose file, .npz), the scaled bod
     diffbody mocap static.trc walk.trc --markerset opensim-gait --out fit.npz --png fit.png
     diffbody mocap static.trc walk.trc --markerset gait2354_Scale_MarkerSet.xml \
         --tasks subject01_Setup_IK.xml --mot angles.mot --trc model_markers.trc
+
+With a folder of trials, or a quoted glob pattern, the static registration is done once and
+every trial fitted against it, each trial's files written into the --out folder as it
+finishes, with a summary CSV that `--resume` goes on from (`diffbody.fitting.fit_trials`):
+
+    diffbody mocap static.trc trials/ --out fits/ --mot --png
+    diffbody mocap static.trc 'trials/*.trc' --out fits/ --resume
 """
 
-import dataclasses
+import glob
 import os
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -16,21 +24,34 @@ import numpy as np
 
 from ._args import add_body_args, body_from_args, check_output, finite_float
 
-PICTURE_FRAMES = 4  # frames drawn in the PNG, evenly over the trial
+FLAG = True  # an output option given alone: with several trials, each trial's file
 
 
 def add_mocap_command(sub) -> None:
     """Add the `mocap` subcommand to the `diffbody` command line's subparsers."""
     p = sub.add_parser(
         "mocap",
-        help="scale the body on a static marker trial and fit every frame of a motion (TRC/C3D)",
+        help="scale the body on a static marker trial and fit every frame of a motion (TRC/C3D), "
+        "or of every trial of a folder",
         description="Scales and registers the body (segment lengths, posture, marker offsets) "
         "on the static trial, then fits the posture of every frame of the motion trial to its "
-        "markers. Marker files: .trc (units from the header) or .c3d (needs ezc3d).",
+        "markers. Marker files: .trc (units from the header) or .c3d (needs ezc3d). Given a "
+        "folder of trials (its .trc and .c3d files, by name) or a quoted glob pattern "
+        "('trials/*.trc'), the registration is done once and every trial fitted against it; "
+        "--out is then a folder (default fits/) that gets, as each trial finishes, NAME.npz "
+        "(its fit) and the outputs asked for (--mot, --trc, --png, --curves given alone: "
+        "NAME.mot, NAME.model.trc, NAME.png, NAME.curves.png), the scaled body once "
+        "(body.json) and a row in trials.csv (frames, status, marker RMS, faulty markers). "
+        "Ctrl-C keeps the finished trials; --resume goes on from them. A trial that cannot be "
+        "read or fitted is told and skipped (exit status 1).",
     )
     add_body_args(p)
     p.add_argument("static", help="static trial: the subject standing still (.trc or .c3d)")
-    p.add_argument("motion", help="trial to fit, frame by frame (.trc or .c3d)")
+    p.add_argument(
+        "motion",
+        help="trial to fit, frame by frame (.trc or .c3d); or a folder of trials, or a quoted "
+        "glob pattern of them ('trials/*.trc')",
+    )
     p.add_argument(
         "--markerset",
         default="opensim-gait",
@@ -70,17 +91,40 @@ def add_mocap_command(sub) -> None:
         metavar=("T0", "T1"),
         help="fit only the frames with T0 <= time <= T1 (s)",
     )
-    p.add_argument("--out", default="fit.npz", help="the fit's pose file (.npz, default fit.npz)")
-    p.add_argument("--png", default=None, help="PNG of a few fitted frames with their markers")
+    p.add_argument(
+        "--out",
+        default=None,
+        help="the fit's pose file (.npz, default fit.npz); for a folder or pattern of trials, "
+        "the output folder (default fits/)",
+    )
+    optional = {"metavar": "FILE", "nargs": "?", "const": FLAG, "default": None}
+    alone = "; for several trials give it alone: each trial's OUT/NAME"
+    p.add_argument(
+        "--png",
+        **optional,
+        help=f"PNG of a few fitted frames with their markers{alone}.png",
+    )
     p.add_argument(
         "--curves",
-        default=None,
-        help="PNG of the fit over time: hip, knee, ankle angles and the marker error per frame",
+        **optional,
+        help="PNG of the fit over time: hip, knee, ankle angles and the marker error per "
+        f"frame{alone}.curves.png",
     )
     p.add_argument(
-        "--mot", default=None, help="ISB joint angles of every frame, degrees (OpenSim .mot)"
+        "--mot",
+        **optional,
+        help=f"ISB joint angles of every frame, degrees (OpenSim .mot){alone}.mot",
     )
-    p.add_argument("--trc", default=None, help="the model's markers of every frame (.trc)")
+    p.add_argument(
+        "--trc", **optional, help=f"the model's markers of every frame (.trc){alone}.model.trc"
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="several trials: go on with an interrupted run's --out folder (same static "
+        "trial, body and settings; its trials unchanged), fitting only the trials its "
+        "trials.csv lacks; without it a trials.csv there is begun anew",
+    )
     p.set_defaults(run=_mocap)
 
 
@@ -91,17 +135,6 @@ def _axes(text: str | None):
     if text is not None and text not in LAB_AXES:
         raise ValueError(f"--axes {text}: unknown lab axes; use one of {', '.join(LAB_AXES)}")
     return text
-
-
-def _load_markerset(name_or_path: str, body):
-    """A shipped or JSON marker set, or an OpenSim one (.xml, .osim)."""
-    if name_or_path.lower().endswith((".xml", ".osim")):
-        from ..fitting._opensim_files import load_opensim_markerset
-
-        return load_opensim_markerset(name_or_path, body)
-    from ..fitting._markerset import load_markerset
-
-    return load_markerset(name_or_path, body)
 
 
 def _noted(fn, *args, **kwargs):
@@ -115,18 +148,107 @@ def _noted(fn, *args, **kwargs):
     return out
 
 
+def several_trials(motion: str) -> bool:
+    """Whether the command's second argument names several trials: a folder, or a glob
+    pattern that is not itself a file's name."""
+    return os.path.isdir(motion) or (glob.has_magic(motion) and not os.path.exists(motion))
+
+
+_OUTPUTS = (("--png", "png"), ("--curves", "curves"), ("--mot", "mot"), ("--trc", "trc"))
+
+
 def _mocap(args) -> int:
+    if several_trials(args.motion):
+        return _mocap_trials(args)
+    if args.resume:
+        raise ValueError(
+            f"--resume: for a folder or a glob pattern of trials; {args.motion} is one trial"
+        )
+    for flag, attr in _OUTPUTS:
+        if getattr(args, attr) is FLAG:
+            suffix = ".mot" if attr == "mot" else ".trc" if attr == "trc" else ".png"
+            raise ValueError(f"{flag}: give a {suffix} file name (one trial: {args.motion})")
+    args.out = "fit.npz" if args.out is None else args.out
+    return _mocap_one(args)
+
+
+def _mocap_trials(args) -> int:
+    """A folder or glob pattern of trials: `fit_trials`, interrupts told as a clean stop."""
+    from .._streaming import Interrupted, Interrupts, read_results
+    from ..fitting._trials import SUMMARY, fit_trials, trial_files
+
+    out = "fits" if args.out is None else args.out
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ValueError(f"--out {out}: is a file; with several trials --out names a folder")
+    outputs = []
+    for flag, attr in _OUTPUTS:
+        value = getattr(args, attr)
+        if value is not None and value is not FLAG:
+            raise ValueError(
+                f"{flag} {value}: with several trials give {flag} alone; each trial's file "
+                f"goes into the --out folder ({out})"
+            )
+        if value is FLAG:
+            outputs.append(attr)
+    axes = _axes(args.axes)
+    paths = trial_files(args.motion)
+    body = body_from_args(args)
+    summary = os.path.join(out, SUMMARY)
+    with Interrupts() as signals:
+        try:
+            result = fit_trials(
+                body,
+                args.static,
+                paths,
+                args.markerset,
+                out,
+                resume=args.resume,
+                tasks=args.tasks,
+                keep_zeros=args.keep_zeros,
+                axes=axes,
+                prior=not args.no_prior,
+                time=tuple(args.time) if args.time is not None else None,
+                outputs=outputs,
+                progress=True,
+                signals=signals,
+            )
+        except (Interrupted, KeyboardInterrupt) as e:
+            # KeyboardInterrupt: a SIGINT the handler did not see (raised inside a JAX call).
+            code = e.code if isinstance(e, Interrupted) else 130
+            done = len(read_results(summary).ends) if os.path.exists(summary) else 0
+            print(
+                f"interrupted after {done} of {len(paths)} trials; {out} holds them; "
+                "rerun with --resume",
+                file=sys.stderr,
+            )
+            return code
+    failed = f", {len(result.failed)} failed: {', '.join(result.failed)}" if result.failed else ""
+    print(
+        f"{len(result.fitted) + len(result.resumed)} of {result.total} trials done "
+        f"({len(result.resumed)} by an earlier run){failed}; wrote {out} ({result.summary})"
+    )
+    return 1 if result.failed else 0
+
+
+def _mocap_one(args) -> int:
     import jax
 
-    from ..anthropometry._scaling import SCALE_GROUPS
-    from ..files._pose_file import save_pose
-    from ..files._saving import save_body
     from ..fitting._markers import read_markers
     from ..fitting._markerset import match_markers
     from ..fitting._motion_fit import fit_motion
     from ..fitting._opensim_files import read_ik_tasks
     from ..fitting._sphere_fit import FitStatus
     from ..fitting._static_fit import scale_and_register
+    from ..fitting._trial_outputs import (
+        load_any_markerset,
+        picture,
+        save_angles,
+        save_curves,
+        save_fit,
+        save_model_markers,
+        save_scaled_body,
+        scaled_body,
+    )
 
     for flag, path, suffix in (
         ("--out", args.out, ".npz"),
@@ -152,7 +274,7 @@ def _mocap(args) -> int:
                 f"range; its frames run {whole.times[0]:.3f}-{whole.times[-1]:.3f} s"
             )
     body = body_from_args(args)
-    markerset = _noted(_load_markerset, args.markerset, body)
+    markerset = _noted(load_any_markerset, args.markerset, body)
 
     t0 = time.perf_counter()
     static_fit = _noted(scale_and_register, body, static, markerset, prior=not args.no_prior)
@@ -180,33 +302,11 @@ def _mocap(args) -> int:
     )
     fit_s = time.perf_counter() - t0
 
-    scaled = dataclasses.replace(static_fit.body, name=f"{body.name}-mocap")
+    scaled = scaled_body(static_fit, body)
     out_path = Path(args.out)
-    body_path = save_body(scaled, out_path.with_name(f"{out_path.stem}.body.json"))
+    body_path = save_scaled_body(scaled, out_path.with_name(f"{out_path.stem}.body.json"))
+    save_fit(out_path, scaled, static_fit, out, trial)
     per_marker = out.per_marker()
-    save_pose(
-        out_path,
-        scaled,
-        out.poses,
-        times=out.times,
-        status=[FitStatus(int(s)).name.lower() for s in np.asarray(out.status)],
-        residuals={
-            "rms": out.rms,  # (n_frames,) m over the markers
-            "max": out.max,
-            "errors": out.errors,  # (n_frames, n_markers) m, NaN where missing
-            "outliers": out.outliers,  # (n_frames, n_markers) beyond the robust scale
-        },
-        scale={"groups": list(SCALE_GROUPS), "axial": static_fit.axial},
-        overlays={"markers": {"names": list(out.names), "positions": trial.positions}},
-        extra={
-            "marker_kinds": list(out.kinds),
-            "model_markers": out.markers,  # (n_frames, n_markers, 3) m, world
-            "marker_rms": [per_marker[n][0] for n in out.names],
-            "marker_max": [per_marker[n][1] for n in out.names],
-            "static_marker_names": list(static_fit.markerset.names),
-            "static_errors": static_fit.errors,
-        },
-    )
 
     rms = np.asarray(out.rms)
     status = np.asarray(out.status)
@@ -247,73 +347,16 @@ def _mocap(args) -> int:
     spine_path = f" and {body_path.stem}.spine.json" if scaled.spine is not None else ""
     print(f"wrote {out_path} (the fit) and {body_path}{spine_path} (the scaled body)")
     if args.mot:
-        from ..files._motion_files import write_mot
-
-        write_mot(args.mot, out.times, out.angles(scaled), name=f"{out_path.stem} joint angles")
+        save_angles(args.mot, out, scaled, name=f"{out_path.stem} joint angles")
         print(f"wrote {args.mot} (ISB joint angles, degrees)")
     if args.trc:
-        from ..fitting._marker_trial import MarkerTrial
-        from ..fitting._trc import write_trc
-
-        model = MarkerTrial(out.names, out.times, out.markers, trial.rate, args.trc)
         trc_axes = axes or "opensim"  # a TRC file is Y up unless --axes says otherwise
-        write_trc(args.trc, model, axes=trc_axes)
+        save_model_markers(args.trc, out, trial, trc_axes)
         print(f"wrote {args.trc} (the model's markers, lab axes {trc_axes})")
     if args.png:
         picture(scaled, out, trial.positions, args.png, os.path.basename(args.motion))
         print(f"wrote {args.png}")
     if args.curves:
-        from ..fitting._motion_plots import draw_motion
-
-        draw_motion(out, scaled, title=os.path.basename(args.motion), path=args.curves)
+        save_curves(args.curves, out, scaled, title=os.path.basename(args.motion))
         print(f"wrote {args.curves} (joint angles and marker error over time)")
     return 1 if np.any(status == FitStatus.FAILED) else 0
-
-
-def draw_markers(ax, points, view="left", **style) -> None:
-    """Scatter world points (n, 3) m over a `diffbody.draw`n body, in the same projection;
-    NaN rows (missing markers) are skipped."""
-    from .._render import camera
-
-    points = np.asarray(points, float)
-    points = points[np.all(np.isfinite(points), axis=1)]
-    _, right, up, _ = camera(view)
-    ax.scatter(points @ right, points @ up, zorder=5, **style)
-
-
-def picture(body, fit, measured, path, title: str, view="left") -> Path:
-    """A PNG of a few frames of a motion fit: the sphere body, the measured markers (blue
-    rings) and the model's (red dots)."""
-    import jax
-    import jax.numpy as jnp
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    from .._render import draw
-
-    n = len(fit.times)
-    frames = np.unique(np.linspace(0, n - 1, min(PICTURE_FRAMES, n)).round().astype(int))
-    fig, axes = plt.subplots(1, len(frames), figsize=(3.0 * len(frames), 5.0), squeeze=False)
-    for ax, i in zip(axes[0], frames):
-        pose = jax.tree.map(lambda a: jnp.asarray(a[i]), fit.poses)
-        draw(ax, body, pose, view)
-        draw_markers(ax, measured[i], view, s=28, facecolors="none", edgecolors="tab:blue", lw=1)
-        draw_markers(ax, fit.markers[i], view, s=6, color="crimson")
-        ax.set_title(
-            f"t = {float(fit.times[i]):.2f} s, RMS {100 * float(fit.rms[i]):.1f} cm", fontsize=9
-        )
-    # One scale for every panel: the widest panel's width, the tallest one's height.
-    width = max(np.diff(ax.get_xlim())[0] for ax in axes[0])
-    top = max(ax.get_ylim()[1] for ax in axes[0])
-    for ax in axes[0]:
-        middle = np.mean(ax.get_xlim())
-        ax.set_xlim(middle - width / 2, middle + width / 2)
-        ax.set_ylim(min(ax.get_ylim()[0], -0.05), top)
-    fig.suptitle(f"diffbody mocap: {title} (measured markers: rings; model: dots)", fontsize=10)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path

@@ -1,6 +1,6 @@
 """Fitting a body to measurements: sphere clouds, and motion capture (marker files, marker
-sets, scaling and registration on a static trial, every frame of a trial, OpenSim's set-up
-files)."""
+sets, scaling and registration on a static trial, every frame of a trial, a folder of trials,
+OpenSim's set-up files)."""
 
 from ._clouds import (
     sample_pose as sample_pose,
@@ -88,4 +88,10 @@ from ._trc import (
 )
 from ._trc import (
     write_trc as write_trc,
+)
+from ._trials import (
+    TrialsSummary as TrialsSummary,
+)
+from ._trials import (
+    fit_trials as fit_trials,
 )

@@ -1,0 +1,441 @@
+"""A folder of motion-capture trials fitted against one static registration (`fit_trials`;
+the command: `diffbody mocap STATIC TRIALS_DIR/`), streamed and resumable.
+
+The body is scaled and registered on the static trial once; every trial is then fitted in
+turn, and its files are written into the output folder as soon as it finishes, each whole
+or not at all (`_trial_outputs.written_whole`): `NAME.npz` (the fit's pose file), and on
+request `NAME.mot`, `NAME.model.trc`, `NAME.png`, `NAME.curves.png`; the scaled body once
+(`body.json`). Then the trial's row is appended to `trials.csv` (diffbody._streaming's
+layout: `#` header lines that say what produced the file, the column names, one row per
+finished trial, each appended in one write and fsynced). No timings go into the file: two
+runs give the same bytes but for the `# begun:` line.
+
+`resume=True` checks the file's header against the run asked for (the static trial's
+sha256, the body, the marker set, the settings that change the fits) and each recorded
+trial's sha256, and refuses a difference, naming it; it then skips the recorded trials whose
+files are there and fits the rest. A trial that cannot be read or fitted is a row with
+status `error` and the reason; the others go on.
+"""
+
+import csv
+import glob
+import hashlib
+import io
+import os
+import time as clock
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .._streaming import Interrupts, append_lines, header_text, replace_atomically, truncate
+from ._trial_outputs import (
+    OUTPUTS,
+    load_any_markerset,
+    remove_partials,
+    save_scaled_body,
+    scaled_body,
+    trial_cells,
+    trial_outputs,
+    write_trial_files,
+)
+
+FORMAT = "diffbody.mocap-trials/1"  # the summary CSV's layout, its first header line
+SUMMARY = "trials.csv"
+BODY_FILE = "body.json"
+TRIAL_SUFFIXES = (".trc", ".c3d")
+COLUMNS = ["trial", "sha256", "frames", "markers", "status", "converged", "marker_rms_m", "notes"]
+# The settings a resumed run must share with the run that began the file, as a change of
+# each is told.
+_SETTINGS = {
+    "keep-zeros": "--keep-zeros",
+    "axes": "--axes",
+    "prior": "the prior (--no-prior)",
+    "time": "--time",
+    "float": "the float precision (JAX_ENABLE_X64)",
+}
+
+
+@dataclass(frozen=True)
+class TrialsSummary:
+    """What `fit_trials` did: `fitted`, the trials fitted by this run (file names, in
+    order); `resumed`, those an earlier run had done (skipped); `failed`, those of either
+    whose status is `failed` or `error`; `summary`, the CSV (`out_dir/trials.csv`)."""
+
+    out_dir: Path
+    summary: Path
+    total: int
+    fitted: tuple[str, ...]
+    resumed: tuple[str, ...]
+    failed: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.failed
+
+
+def trial_files(trials) -> list[Path]:
+    """The trial files that `trials` names: a list of files as given; a folder: its .trc
+    and .c3d files; a glob pattern ('trials/*.trc'): the files it matches; else one file.
+    Sorted by file name (a folder, a pattern)."""
+    if isinstance(trials, (list, tuple)):
+        return [Path(p) for p in trials]
+    path = Path(trials)
+    if path.is_dir():
+        found = [p for p in path.iterdir() if p.is_file() and p.suffix.lower() in TRIAL_SUFFIXES]
+        if not found:
+            raise ValueError(f"{trials}: no .trc or .c3d file in this folder")
+    elif glob.has_magic(str(trials)) and not path.exists():
+        found = [Path(p) for p in glob.glob(str(trials), recursive=True) if Path(p).is_file()]
+        if not found:
+            raise ValueError(f"{trials}: no file matches this pattern")
+    else:
+        return [path]
+    return sorted(found, key=lambda p: (p.name, str(p)))
+
+
+def file_sha256(path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def array_hash(*trees) -> str:
+    """16 hex digits naming the arrays of `trees` (as float32, so that the name does not
+    depend on JAX's precision setting): `diffbody batch`'s body-dimensions hash."""
+    import equinox as eqx
+    import jax
+
+    digest = hashlib.sha256()
+    for leaf in jax.tree.leaves(eqx.filter(trees, eqx.is_array)):
+        a = np.asarray(leaf)
+        a = a.astype(np.float32) if np.issubdtype(a.dtype, np.floating) else a
+        digest.update(f"{a.dtype}{a.shape}".encode())
+        digest.update(np.ascontiguousarray(a).tobytes())
+    return digest.hexdigest()[:16]
+
+
+def header_fields(body, static, markerset, tasks, *, keep_zeros, axes, prior, time):
+    """The summary CSV's header, in the order written. `--resume` checks all but the file
+    names (`static`, `tasks`: their hashes are checked) and `begun` (UTC)."""
+    from datetime import datetime, timezone
+
+    import jax.numpy as jnp
+
+    from ..files._pose_file import structure_hash
+
+    names = "\n".join([markerset.name, *markerset.names, *markerset.kinds])
+    layout = np.frombuffer(names.encode(), np.uint8), np.asarray(markerset.segments)
+    return [
+        ("format", FORMAT),
+        ("static", str(static)),
+        ("static-sha256", file_sha256(static)),
+        ("body", body.name),
+        ("body-structure", structure_hash(body)),
+        ("body-dimensions", array_hash(body)),
+        ("markerset", markerset.name),
+        ("markerset-hash", array_hash(layout, markerset)),
+        ("tasks", str(tasks) if tasks else "(none)"),
+        ("tasks-sha256", file_sha256(tasks) if tasks else "(none)"),
+        ("keep-zeros", "on" if keep_zeros else "off"),
+        ("axes", axes or "(each file's own)"),
+        ("prior", "on" if prior else "off"),
+        ("time", f"{time[0]!r} {time[1]!r}" if time is not None else "(all)"),
+        ("float", jnp.dtype(jnp.result_type(float)).name),  # JAX_ENABLE_X64 changes the fits
+        ("begun", datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")),
+    ]
+
+
+def _changes(old: dict[str, str], new: dict[str, str]) -> list[str]:
+    """What differs between a summary's header (`old`) and this run's (`new`), in words."""
+    changes = []
+
+    def sha(h, key):
+        return h.get(key, "(not recorded)")[:16]
+
+    if old.get("static-sha256") != new["static-sha256"]:
+        changes.append(
+            f"the static trial changed (sha256 {sha(old, 'static-sha256')}... vs "
+            f"{sha(new, 'static-sha256')}...)"
+        )
+    if any(old.get(k) != new[k] for k in ("body", "body-structure", "body-dimensions")):
+
+        def said(h):
+            return (
+                f"{h.get('body')}: structure {h.get('body-structure')}, "
+                f"dimensions {h.get('body-dimensions')}"
+            )
+
+        changes.append(f"the body changed ({said(old)} vs {said(new)})")
+    if any(old.get(k) != new[k] for k in ("markerset", "markerset-hash")):
+        changes.append(
+            f"the marker set changed ({old.get('markerset')} {old.get('markerset-hash')} vs "
+            f"{new['markerset']} {new['markerset-hash']})"
+        )
+    if old.get("tasks-sha256") != new["tasks-sha256"]:
+        changes.append(
+            f"--tasks changed from {old.get('tasks', '(not recorded)')} (sha256 "
+            f"{sha(old, 'tasks-sha256')}) to {new['tasks']} (sha256 {sha(new, 'tasks-sha256')})"
+        )
+    for key, option in _SETTINGS.items():
+        if old.get(key) != new[key]:
+            changes.append(f"{option} changed from {old.get(key, '(not recorded)')} to {new[key]}")
+    return changes
+
+
+def _recorded(path: Path, fields, shas: dict[str, str | None]):
+    """The summary's header text and its whole rows (line, cells) after checking them
+    against this run; a difference is refused, naming it. Writes nothing."""
+    from .._streaming import read_results
+
+    have = read_results(str(path))
+    refuse = "rerun as it was begun, or without --resume to start over"
+    if have.fields.get("format") != FORMAT or have.columns != COLUMNS:
+        raise ValueError(
+            f"--resume {path.parent}: {path} is not a summary of format {FORMAT} with columns "
+            f"{','.join(COLUMNS)}; rerun without --resume to start over"
+        )
+    data = path.read_bytes()
+    lines = data[have.start : have.ends[-1] if have.ends else have.start].decode()
+    lines = lines.splitlines(True)
+    rows = list(csv.reader(lines))
+    for number, cells in enumerate(rows, start=1):
+        if len(cells) != len(COLUMNS):
+            raise ValueError(
+                f"--resume {path.parent}: {path}: trial row {number} has {len(cells)} cells, "
+                f"not {len(COLUMNS)} (the file was edited); rerun without --resume to start over"
+            )
+    changes = _changes(have.fields, dict(fields))
+    for cells in rows:
+        name, sha = cells[0], cells[1] if len(cells) > 1 else ""
+        if name not in shas:
+            changes.append(f"the trial {name} is recorded but is not among the trials now")
+        elif shas[name] != sha:
+            now = (shas[name] or "(unreadable)")[:16]
+            changes.append(f"the trial {name} changed (sha256 {sha[:16]}... vs {now}...)")
+    if changes:
+        raise ValueError(f"--resume {path.parent}: {'; '.join(changes)}; {refuse}")
+    return data[: have.start], list(zip(lines, rows)), have.ends[-1] if have.ends else have.start
+
+
+def _noted(log, fn, *args, **kwargs):
+    """fn's result; its warnings told as notes, one line each."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = fn(*args, **kwargs)
+    for w in caught:
+        log(f"note: {w.message}")
+    return out
+
+
+def _why(e: Exception) -> str:
+    """An error's message on one line, as the command line words it."""
+    if isinstance(e, KeyError) and e.args:
+        text = str(e.args[0])
+    elif isinstance(e, OSError) and e.filename and e.strerror:
+        text = f"{e.filename}: {e.strerror}"
+    else:
+        text = str(e) or type(e).__name__
+    return " ".join(text.split())
+
+
+def _row(cells) -> str:
+    text = io.StringIO()
+    csv.writer(text, lineterminator="\n").writerow(cells)
+    return text.getvalue()
+
+
+def fit_trials(
+    body,
+    static,
+    trials,
+    markerset="opensim-gait",
+    out_dir="fits",
+    *,
+    resume: bool = False,
+    tasks=None,
+    keep_zeros: bool = False,
+    axes: str | None = None,
+    prior: bool = True,
+    time: tuple[float, float] | None = None,
+    outputs=(),
+    progress: bool = False,
+    log=print,
+    signals=None,
+) -> TrialsSummary:
+    """Scale and register `body` on the `static` trial once, then fit every trial against
+    it, writing each trial's files and its summary row as it finishes (module docstring).
+
+    Args:
+        body: the template body; static: the static trial's file (.trc or .c3d).
+        trials: a folder, a glob pattern or a list of trial files (`trial_files`).
+        markerset: a shipped name, a JSON or OpenSim (.xml, .osim) file, or a `MarkerSet`
+            resolved for `body`.
+        out_dir: the output folder (made if missing).
+        resume: go on with an interrupted run's `out_dir` (module docstring); else a
+            `trials.csv` there is begun anew.
+        tasks: an OpenSim IK task-set or set-up file (`read_ik_tasks`): the markers and
+            weights of the motion fits.
+        keep_zeros, axes: how the marker files are read (`read_markers`: `zero_is_gap` is
+            `not keep_zeros`); prior: `scale_and_register`'s; time: (t0, t1) s, the
+            frames of each trial fitted.
+        outputs: the optional files of each trial, names of `OUTPUTS` ("mot", "trc", "png",
+            "curves").
+        progress: a progress bar per trial on stderr; log: where the report lines go.
+        signals: an entered `diffbody._streaming.Interrupts`, or None for one of its own.
+            A signal stops the run between two trials' writes with `Interrupted`: the
+            finished trials are in `out_dir`, and `resume=True` goes on from there.
+
+    Returns:
+        A `TrialsSummary`. A trial that cannot be read or fitted is recorded (status
+        `error`, the reason in `notes`), told to `log` as `TRIAL: skipped: WHY`, and the
+        run goes on.
+    """
+    arguments = dict(locals())
+    if signals is None:
+        with Interrupts() as own:
+            return fit_trials(**{**arguments, "signals": own})
+    from ._markers import read_markers
+    from ._opensim_files import read_ik_tasks
+
+    unknown = [o for o in outputs if o not in OUTPUTS]
+    if unknown:
+        raise ValueError(f"fit_trials: unknown outputs {unknown}; use some of {list(OUTPUTS)}")
+    outputs = [o for o in OUTPUTS if o in outputs]
+    paths, out_dir = trial_files(trials), Path(out_dir)
+    names = [p.stem for p in paths]
+    for name in sorted({n for n in names if names.count(n) > 1}):
+        same = [str(p) for p in paths if p.stem == name]
+        raise ValueError(f"trials {' and '.join(same)} would both write {name}.npz; rename one")
+    for p in paths:
+        if out_dir.is_dir() and p.parent.resolve() == out_dir.resolve():
+            raise ValueError(f"{out_dir}: holds the trial {p.name}; give another output folder")
+    # The files before the solves: a malformed static trial is told in milliseconds.
+    zero_is_gap = not keep_zeros
+    static_trial = read_markers(static, axes=axes, zero_is_gap=zero_is_gap)
+    weights_of = read_ik_tasks(tasks) if tasks else None
+    if isinstance(markerset, (str, os.PathLike)):
+        markerset = _noted(log, load_any_markerset, str(markerset), body)
+    fields = header_fields(
+        body, static, markerset, tasks, keep_zeros=keep_zeros, axes=axes, prior=prior, time=time
+    )
+    shas = {}
+    for p in paths:
+        try:
+            shas[p.name] = file_sha256(p)
+        except OSError:
+            shas[p.name] = None
+    summary = out_dir / SUMMARY
+    kept = []
+    if resume and summary.exists():
+        header, rows, end = _recorded(summary, fields, shas)
+    elif resume:
+        log(f"--resume: no {summary} yet; starting from the first trial")
+    with signals.held():
+        out_dir.mkdir(parents=True, exist_ok=True)
+        remove_partials(out_dir)
+        if resume and summary.exists():
+            kept = [
+                (line, cells)
+                for line, cells in rows
+                if cells[4] == "error"
+                or all(f.exists() for f in trial_outputs(out_dir, Path(cells[0]).stem, outputs))
+            ]
+            if len(kept) == len(rows):
+                truncate(str(summary), end)  # a partial last line, left by a kill, goes
+            else:  # a trial whose files are gone is fitted again
+                replace_atomically(str(summary), header.decode() + "".join(ln for ln, _ in kept))
+            log(f"resuming {out_dir} after {len(kept)} of {len(paths)} trials")
+        else:
+            replace_atomically(str(summary), header_text(fields, COLUMNS))
+    done = {cells[0] for _, cells in kept}
+    failed = [cells[0] for _, cells in kept if cells[4] in ("failed", "error")]
+    todo = [p for p in paths if p.name not in done]
+    body_files = [out_dir / BODY_FILE]
+    fitted = []
+    if todo or not body_files[0].exists():
+        t0 = clock.perf_counter()
+        from ._static_fit import scale_and_register
+
+        static_fit = _noted(log, scale_and_register, body, static_trial, markerset, prior=prior)
+        scaled = scaled_body(static_fit, body)
+        with signals.held():
+            save_scaled_body(scaled, body_files[0])
+        rms = float(np.sqrt(np.mean(np.asarray(static_fit.errors) ** 2)))
+        log(
+            f"{static}: {len(static_trial.names)} markers; scaled and registered in "
+            f"{clock.perf_counter() - t0:.1f} s, marker RMS {100 * rms:.2f} cm; "
+            f"wrote {body_files[0]}"
+        )
+    for path in todo:
+        t0 = clock.perf_counter()
+        cells = [path.name, shas[path.name] or "", "", "", "error", "", "", ""]
+        try:
+            fit, trial = _fit_one(
+                path, static_fit, weights_of, tasks, time, axes, zero_is_gap, progress, log
+            )
+        except Exception as e:  # the trial's error is its row; the others go on
+            cells[-1] = _why(e)
+            log(f"{path}: skipped: {cells[-1]}")
+            with signals.held():
+                append_lines(str(summary), _row(cells))
+            failed.append(path.name)
+            continue
+        cells[2:] = trial_cells(fit)
+        with signals.held():  # the trial's files, then its row: a row has its files
+            write_trial_files(out_dir, path, fit, trial, static_fit, scaled, outputs, axes)
+            append_lines(str(summary), _row(cells))
+        fitted.append(path.name)
+        if cells[4] == "failed":
+            failed.append(path.name)
+        log(
+            f"{path.name}: {cells[2]} frames, {cells[3]} markers, {cells[5]} of {cells[2]} "
+            f"frames converged, marker RMS {100 * float(cells[6]):.2f} cm over the inliers "
+            f"({clock.perf_counter() - t0:.1f} s); faulty markers: {cells[7] or 'none'}"
+        )
+    return TrialsSummary(
+        out_dir=out_dir,
+        summary=summary,
+        total=len(paths),
+        fitted=tuple(fitted),
+        resumed=tuple(sorted(done, key=[p.name for p in paths].index)),
+        failed=tuple(n for n in (p.name for p in paths) if n in failed),
+    )
+
+
+def _fit_one(path, static_fit, weights_of, tasks, time, axes, zero_is_gap, progress, log):
+    """One trial's `MotionFit` and its trial (the markers matched to the set)."""
+    from ._markers import read_markers
+    from ._markerset import match_markers
+    from ._motion_fit import fit_motion
+
+    motion = read_markers(path, axes=axes, zero_is_gap=zero_is_gap)
+    if time is not None:
+        whole, motion = motion, motion.between(*time)
+        if len(motion.times) == 0:
+            raise ValueError(
+                f"--time {time[0]:g} {time[1]:g}: no frame of {path} in that range; its "
+                f"frames run {whole.times[0]:.3f}-{whole.times[-1]:.3f} s"
+            )
+    registered, trial = _noted(log, match_markers, static_fit.markerset, motion)
+    weights = None
+    if weights_of is not None:
+        unused = [n for n in weights_of if n not in registered.names]
+        if unused:
+            log(f"note: {tasks}: tasks for markers the fit lacks, ignored: {', '.join(unused)}")
+        weights = {n: w for n, w in weights_of.items() if n in registered.names}
+    fit = _noted(
+        log,
+        fit_motion,
+        static_fit.body,
+        registered,
+        trial,
+        start=static_fit.pose,
+        weights=weights,
+        scale=static_fit.marker_scale,
+        progress=progress,
+    )
+    return fit, trial
