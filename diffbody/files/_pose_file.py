@@ -295,7 +295,8 @@ def load_pose(path: str | Path, body: Body | None = None) -> PoseRecord:
         kind=kind,
         pose=pose,
         times=None if times is None else np.asarray(times, float),
-        status=tuple(status) if isinstance(status, list) else status,
+        # A list in the document; an array of names where a long run's merge streamed it.
+        status=tuple(str(s) for s in status) if isinstance(status, (list, np.ndarray)) else status,
         residuals={k: np.asarray(v) for k, v in (doc.get("residuals") or {}).items()},
         scale=dict(doc.get("scale") or {}),
         overlays={k: dict(v) for k, v in (doc.get("overlays") or {}).items()},

@@ -17,7 +17,6 @@ import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import equinox as eqx
 import jax
 import numpy as np
 
@@ -26,14 +25,14 @@ from .._streaming import (
     Interrupted,
     Interrupts,
     append_lines,
-    fsync_file,
     header_text,
     read_results,
     replace_atomically,
 )
-from ..files._pose_file import PoseRecord, load_pose, save_pose
+from ..files._pose_file import PoseRecord, load_pose
 from ..files._targets_file import scan_targets, target_chunks
 from . import _batch_file as bf
+from ._batch_postures import merge_postures, write_part
 
 
 @dataclass(frozen=True)
@@ -208,7 +207,7 @@ def _run_share(
             result = _solve_chunk(body, effectors, xyz, chunk, settings)
             text = bf.rows_text(result, at)
             with signals.held():  # the chunk's postures, then its rows: a row has its posture
-                _write_part(parts, index, body, result, xyz, effectors)
+                write_part(parts, index, body, result, xyz, effectors)
                 append_lines(path, text)
                 done = at - first + len(xyz)
             bar.update(done)
@@ -242,25 +241,6 @@ def _solve_chunk(body, effectors, xyz, chunk: int, settings):
     padded = np.concatenate([xyz, np.full((chunk - m, k, 3), np.nan)]) if m < chunk else xyz
     result = solve(body, effectors, padded, chunk_size=chunk, progress=False, **settings)
     return jax.tree.map(lambda a: np.asarray(a)[:m], result)
-
-
-def _write_part(parts: str, index: int, body, result, xyz, effectors) -> None:
-    """A chunk's postures as a pose file in the folder of parts, whole or not at all."""
-    os.makedirs(parts, exist_ok=True)
-    path = bf.part_path(parts, index)
-    tmp = path[: -len(".npz")] + ".partial.npz"
-    save_pose(
-        tmp,
-        body,
-        result.pose,
-        kind="batch",
-        status=bf.status_names(result.status),
-        residuals={"targets": result.residuals},
-        overlays={"targets": {"names": list(effectors), "points": xyz}},
-        extra={"reached": result.reached, "valid": result.valid, "steps": result.steps},
-    )
-    fsync_file(tmp)
-    os.replace(tmp, path)
 
 
 def _finish_processes(out, fields, total, chunk, n_chunks, body, effectors) -> None:
@@ -298,60 +278,8 @@ def _merge(out, fields, total, chunk, n_chunks, body, effectors) -> None:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, out)
-    _merge_postures(parts, n_chunks, bf.poses_path(out), body, effectors)
+    merge_postures(parts, n_chunks, bf.poses_path(out), body, effectors)
     shutil.rmtree(parts)
     for p in paths:
         if p != out:
             os.remove(p)
-
-
-def _merge_postures(parts: str, n: int, poses: str, body, effectors) -> None:
-    """The `n` parts' postures as one pose file, `poses`, written whole or not at all."""
-    from .._spine import spine_angles
-
-    # float64 while reading: the angles go back as they were written, not via float32.
-    with jax.enable_x64(True):
-        records = [load_pose(bf.part_path(parts, i), body) for i in range(n)]
-        poses_read = [r.pose for r in records]
-        if any(p.spine_target is not None for p in poses_read):
-            # A chunk whose rows the limbs alone reached names no spine target; where the
-            # trunk moved in another chunk, it is the start's spine, as one solve names it.
-            rest = np.asarray(spine_angles(body, body.spine, body.rest_pose()).sum(0))
-            poses_read = [
-                p
-                if p.spine_target is not None
-                else eqx.tree_at(
-                    lambda q: q.spine_target,
-                    p,
-                    np.repeat(rest[None], r.n_frames, 0),
-                    is_leaf=lambda x: x is None,
-                )
-                for p, r in zip(poses_read, records)
-            ]
-        pose = jax.tree.map(lambda *a: np.concatenate([np.asarray(x) for x in a]), *poses_read)
-
-        def joined(get, dtype):
-            return np.concatenate([np.asarray(get(r), dtype) for r in records])
-
-        tmp = poses[: -len(".npz")] + ".partial.npz"
-        save_pose(
-            tmp,
-            body,
-            pose,
-            kind="batch",
-            status=[s for r in records for s in r.status],
-            residuals={"targets": joined(lambda r: r.residuals["targets"], float)},
-            overlays={
-                "targets": {
-                    "names": list(effectors),
-                    "points": joined(lambda r: r.overlays["targets"]["points"], float),
-                }
-            },
-            extra={
-                "reached": joined(lambda r: r.extra["reached"], bool),
-                "valid": joined(lambda r: r.extra["valid"], bool),
-                "steps": joined(lambda r: r.extra["steps"], int),
-            },
-        )
-    fsync_file(tmp)
-    os.replace(tmp, poses)

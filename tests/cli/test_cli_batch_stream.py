@@ -227,7 +227,7 @@ def test_merged_postures_name_one_spine_target_for_every_row(male50, tmp_path):
     import jax
     import jax.numpy as jnp
 
-    from diffbody.ik._batch_run import _merge_postures, _write_part
+    from diffbody.ik._batch_postures import merge_postures, write_part
 
     rest = male50.rest_pose()
     assert rest.spine_target is None
@@ -244,8 +244,8 @@ def test_merged_postures_name_one_spine_target_for_every_row(male50, tmp_path):
             valid=np.ones((2, 1), bool),
             steps=np.arange(2),
         )
-        _write_part(str(tmp_path / "r.poses"), index, male50, result, xyz, ["left_hand.palm"])
-    _merge_postures(str(tmp_path / "r.poses"), 2, str(tmp_path / "r.poses.npz"), male50, ["x"])
+        write_part(str(tmp_path / "r.poses"), index, male50, result, xyz, ["left_hand.palm"])
+    merge_postures(str(tmp_path / "r.poses"), 2, str(tmp_path / "r.poses.npz"), male50, ["x"])
     merged = db.load_pose(tmp_path / "r.poses.npz", male50)
     start = np.asarray(db.spine_angles(male50, male50.spine, rest).sum(0))
     np.testing.assert_allclose(merged.pose.spine_target[:2], [start, start], atol=1e-12)
