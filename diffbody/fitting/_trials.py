@@ -161,7 +161,8 @@ def _changes(old: dict[str, str], new: dict[str, str]) -> list[str]:
             f"the static trial changed (sha256 {sha(old, 'static-sha256')}... vs "
             f"{sha(new, 'static-sha256')}...)"
         )
-    if any(old.get(k) != new[k] for k in ("body", "body-structure", "body-dimensions")):
+    body_changed = any(old.get(k) != new[k] for k in ("body", "body-structure", "body-dimensions"))
+    if body_changed:
 
         def said(h):
             return (
@@ -170,7 +171,10 @@ def _changes(old: dict[str, str], new: dict[str, str]) -> list[str]:
             )
 
         changes.append(f"the body changed ({said(old)} vs {said(new)})")
-    if any(old.get(k) != new[k] for k in ("markerset", "markerset-hash")):
+    # The set is resolved on the body: another body moves its offsets, and that is told.
+    if old.get("markerset") != new["markerset"] or (
+        old.get("markerset-hash") != new["markerset-hash"] and not body_changed
+    ):
         changes.append(
             f"the marker set changed ({old.get('markerset')} {old.get('markerset-hash')} vs "
             f"{new['markerset']} {new['markerset-hash']})"
