@@ -105,8 +105,6 @@ def start_processes(args) -> str | None:
         raise ValueError(
             f"--process-id {args.process_id}: processes are numbered 0 to {args.num_processes - 1}"
         )
-    # CPU processes meet through gloo (the merge waits on every process); GPUs use their own.
-    jax.config.update("jax_cpu_collectives_implementation", "gloo")
     if args.coordinator is None:
         jax.distributed.initialize()
     else:

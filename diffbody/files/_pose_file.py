@@ -215,7 +215,8 @@ def _inline(value: Any, archive: Any) -> Any:
     return value
 
 
-def _read_document(path: Path) -> dict:
+def read_document(path: Path) -> dict:
+    """A pose file's document as written, its archived arrays read back (unchecked)."""
     if path.suffix == ".npz":
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such pose file")
@@ -243,7 +244,7 @@ def load_pose(path: str | Path, body: Body | None = None) -> PoseRecord:
         a `PoseRecord`; its `pose` has float arrays (JAX), angles in rad.
     """
     path = Path(path)
-    doc = _read_document(path)
+    doc = read_document(path)
 
     def fail(what: str, fix: str = "write it with diffbody.save_pose") -> PoseFileError:
         return PoseFileError(f"{path}: {what}; {fix}")

@@ -19,7 +19,7 @@ import numpy as np
 
 from .._spine import spine_angles
 from .._streaming import fsync_file
-from ..files._pose_file import SCHEMA, _read_document, save_pose, structure_hash
+from ..files._pose_file import SCHEMA, read_document, save_pose, structure_hash
 from . import _batch_file as bf
 
 
@@ -77,7 +77,7 @@ def merge_postures(parts: str, n: int, poses: str, body, effectors) -> None:
         shapes: dict[str, tuple[np.dtype, tuple[int, ...]]] = {}
         rows, any_spine = 0, False
         for index in range(n):
-            doc = _read_document(Path(bf.part_path(parts, index)))
+            doc = read_document(Path(bf.part_path(parts, index)))
             any_spine |= doc.get("spine_target_deg") is not None
             for key, a in _row_arrays(doc, body, rest_spine).items():
                 shapes.setdefault(key, (a.dtype, a.shape[1:]))

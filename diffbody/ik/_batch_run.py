@@ -12,6 +12,7 @@ the merge is a concatenation.
 """
 
 import hashlib
+import itertools
 import os
 import shutil
 from collections.abc import Sequence
@@ -249,13 +250,25 @@ def _finish_processes(out, fields, total, chunk, n_chunks, body, effectors) -> N
     others wait for it, so that each returns with the whole written."""
     count = jax.process_count()
     if count > 1:
-        from jax.experimental import multihost_utils
-
-        multihost_utils.sync_global_devices("diffbody batch: every share written")
+        run = next(_RUNS)
+        _wait_for_every_process(f"diffbody-batch-{run}-written")
     if jax.process_index() == 0:
         _merge(out, fields, total, chunk, n_chunks, body, effectors)
     if count > 1:
-        multihost_utils.sync_global_devices("diffbody batch: merged")
+        _wait_for_every_process(f"diffbody-batch-{run}-merged")
+
+
+_RUNS = itertools.count()  # the streamed batches of this process: their barriers' names
+WAIT_MS = 7 * 24 * 3600 * 1000  # a week: the shares may finish hours apart
+
+
+def _wait_for_every_process(name: str) -> None:
+    """A barrier of the processes through JAX's coordination service, as JAX's own
+    checkpointing waits: no device collective (gloo's context times out after 30 s, when
+    shares finish minutes apart) and a time limit of a week."""
+    from jax._src import distributed
+
+    distributed.global_state.client.wait_at_barrier(name, WAIT_MS)
 
 
 def _merge(out, fields, total, chunk, n_chunks, body, effectors) -> None:
