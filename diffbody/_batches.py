@@ -5,13 +5,16 @@ sharded over the local devices when there are several, with a progress bar on st
 Reach, the sphere fit, motion capture and scaling all go through `map_chunks`.
 """
 
+import contextlib
 from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._chunk_store import ChunkStore
 from ._progress import Progress
+from ._streaming import Interrupted, Interrupts
 
 
 def chunk_rows(chunk_size: int, total: int, n_devices: int = 1) -> int:
@@ -48,6 +51,7 @@ def map_chunks(
     label: str = "batch",
     unit: str = "row",
     carry=None,
+    store: ChunkStore | None = None,
 ):
     """`fn` over the rows of `arrays` (a tuple of pytrees, each leaf with the same leading
     axis) in chunks of `chunk` rows; the results as host (NumPy) arrays, padding dropped.
@@ -55,22 +59,49 @@ def map_chunks(
     With `carry` (not None), `fn(carry, *part) -> (carry, out)` runs the chunks in order,
     each from its predecessor's carry (frames of a recording), and the final carry is
     returned with the results. Else `fn(*part) -> out`.
+
+    With `store` (not with `carry`), each finished chunk's outputs are kept in its folder and
+    the chunks it holds already are read, not solved; SIGINT / SIGTERM between or inside
+    chunks raise `Interrupted` saying how many rows the folder holds.
     """
+    if store is not None and carry is not None:
+        raise ValueError("map_chunks: a store keeps independent chunks, not a carry")
     total = len(jax.tree.leaves(arrays)[0])
     bar = Progress(total, progress, label, unit)
-    parts = []
-    for at in range(0, total, chunk):
-        m = min(chunk, total - at)
-        part = _pad(jax.tree.map(lambda a: np.asarray(a[at : at + m]), arrays), m, chunk)
-        part = jax.tree.map(jnp.asarray, part)
-        if sharding is not None:
-            part = jax.device_put(part, sharding)
-        if carry is None:
-            out = fn(*part)
-        else:
-            carry, out = fn(carry, *part)
-        parts.append(jax.tree.map(lambda a, m=m: np.asarray(a)[:m], out))
-        bar.update(at + m)
+    parts, treedef, done = [], None, 0
+    with Interrupts() if store is not None else contextlib.nullcontext() as signals:
+        try:
+            for index, at in enumerate(range(0, total, chunk)):
+                m = min(chunk, total - at)
+                part = _pad(jax.tree.map(lambda a: np.asarray(a[at : at + m]), arrays), m, chunk)
+                part = jax.tree.map(jnp.asarray, part)
+                kept = store.load(index) if store is not None else None
+                if kept is not None:
+                    # The outputs' structure, traced once (not compiled) where no chunk ran.
+                    treedef = treedef or jax.tree.structure(jax.eval_shape(fn, *part))
+                    parts.append(jax.tree.unflatten(treedef, kept))
+                    done = at + m
+                    bar.update(done)
+                    continue
+                if sharding is not None:
+                    part = jax.device_put(part, sharding)
+                if carry is None:
+                    out = fn(*part)
+                else:
+                    carry, out = fn(carry, *part)
+                out = jax.tree.map(lambda a, m=m: np.asarray(a)[:m], out)
+                treedef = jax.tree.structure(out)
+                if store is not None:
+                    with signals.held():
+                        store.save(index, jax.tree.leaves(out))
+                parts.append(out)
+                done = at + m
+                bar.update(done)
+        except KeyboardInterrupt as e:  # Interrupted, or a SIGINT seen inside a JAX call
+            if store is None:
+                raise
+            signum = e.signum if isinstance(e, Interrupted) else 2
+            raise Interrupted(signum, done, total, store.path) from None
     if not parts:
         raise ValueError("map_chunks: no rows")
     out = jax.tree.map(lambda *a: np.concatenate(a), *parts)

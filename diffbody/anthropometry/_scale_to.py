@@ -12,6 +12,7 @@ Lengths in m, weight in kg.
 """
 
 import dataclasses
+import os
 from typing import NamedTuple
 
 import equinox as eqx
@@ -23,6 +24,8 @@ from jaxtyping import ArrayLike
 
 from .._batches import map_chunks
 from .._body import Body, without_names
+from .._chunk_store import ChunkStore, input_hash
+from .._streaming import tree_hash
 from ..files._body_file import load_body
 from ._measurements import MEASUREMENT_NAMES, UNITS, check_names, measure
 from ._prior import PopulationPrior, ansur2_subjects, check_sex
@@ -96,10 +99,13 @@ _lengths_many_jit = eqx.filter_jit(eqx.filter_vmap(_lengths, in_axes=(None, 0)))
 PIECE_TOL = 1e-9  # relative: an answer whose exact lengths differ more left its piece
 
 
-def _solve_rows(template: Body, args: _Args, y0: np.ndarray, chunk: int, progress: bool) -> tuple:
+def _solve_rows(
+    template: Body, args: _Args, y0: np.ndarray, chunk: int, progress: bool, store=None
+) -> tuple:
     """Solve every row (leading axis of the row-wise fields) in chunks, then re-solve the
     rows whose answer left the linear model's piece with A recomputed there (module
-    docstring). Returns scales (n, 2 n_group), converged (n,) and the exact lengths."""
+    docstring). Returns scales (n, 2 n_group), converged (n,) and the exact lengths. The
+    first pass over all rows keeps its chunks in `store` (a `ChunkStore`) when given."""
     dtype = args.log_target.dtype
     n = y0.shape[0]
     A = np.broadcast_to(np.asarray(args.A), (n,) + args.A.shape[-2:]).copy()
@@ -126,6 +132,7 @@ def _solve_rows(template: Body, args: _Args, y0: np.ndarray, chunk: int, progres
             progress=progress and attempt == 0,
             label="scale",
             unit="person",
+            store=store if attempt == 0 else None,
         )
         linear = np.einsum("nij,nj->ni", A[rows], x[rows])
         off = np.max(np.abs(exact[rows] / linear - 1), axis=1) > PIECE_TOL
@@ -139,7 +146,7 @@ def _solve_rows(template: Body, args: _Args, y0: np.ndarray, chunk: int, progres
 
 
 def _solve_people(
-    template: Body, given, target, whiten, chunk: int, progress: bool = False
+    template: Body, given, target, whiten, chunk: int, progress: bool = False, store=None
 ) -> tuple:
     """Log group scales (n, 2, n_group), converged (n,) and exact lengths (n, L) for rows
     of log targets (n, L), each started from the template scaled uniformly to its stature.
@@ -161,7 +168,7 @@ def _solve_people(
         column = target[:, LENGTHS.index("stature")][:, None]
         y0 = np.exp(np.repeat(column, 2 * N_GROUPS, 1) - log_stature)
         args = _Args(A, jnp.asarray(given), jnp.asarray(target), jnp.asarray(whiten, jnp.float64))
-        x, ok, exact = _solve_rows(template, args, y0, min(chunk, len(target)), progress)
+        x, ok, exact = _solve_rows(template, args, y0, min(chunk, len(target)), progress, store)
     return np.log(np.maximum(x, 1e-12)).reshape(-1, 2, N_GROUPS), ok, exact
 
 
@@ -343,6 +350,8 @@ def scale_population(
     body: Body | None = None,
     chunk_size: int = 1024,
     progress: bool = True,
+    out: str | os.PathLike | None = None,
+    resume: bool = False,
 ) -> PopulationScaling:
     """`scale_to` for many people with the same known measurements, in one vmapped,
     compiled solve per chunk of rows (the last chunk padded), with a progress bar.
@@ -353,6 +362,10 @@ def scale_population(
         sex, prior, body: as for `scale_to`.
         chunk_size: rows per compiled call.
         progress: print a progress bar to stderr.
+        out: a folder that keeps every finished chunk as it is done; an interrupt raises
+            `Interrupted` (a KeyboardInterrupt) saying how many people it holds, and
+            `resume=True` reads those and scales the rest (refused, naming what changed,
+            for other values or settings).
 
     Rows are not refused for being far from the population: `reproduced` says which were
     matched. A row with a value that is not finite and > 0 is not solved (converged and
@@ -370,8 +383,16 @@ def scale_population(
     log_known = np.log(np.where(valid[:, None], values, 1.0))
     mask, target, whiten, log_mass = _conditioned(prior, known, log_known)
     mass = np.where(valid, np.exp(log_mass), np.nan)
+    store = None
+    if out is not None:
+        settings = {"function": "scale_population", "known": " ".join(known)}
+        prior_hash = input_hash(np.asarray(prior.mean), np.asarray(prior.cov))
+        settings |= {"values": input_hash(values), "prior": f"{prior.sex} {prior_hash}"}
+        settings |= {"body": tree_hash(template), "float": "float64"}  # solved in float64
+        chunk = min(chunk_size, len(values))
+        store = ChunkStore.open(out, settings, chunk, resume)
     log_scales, converged, lengths = _solve_people(
-        template, mask, target, whiten, chunk_size, progress
+        template, mask, target, whiten, chunk_size, progress, store
     )
     measured = np.stack(
         [mass if n == "weightkg" else lengths[:, LENGTHS.index(n)] for n in MEASUREMENT_NAMES], 1

@@ -13,6 +13,7 @@ moves only the whole body, the second the posture too, the rest the dimensions a
 """
 
 import dataclasses
+import os
 
 import equinox as eqx
 import jax
@@ -22,8 +23,10 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .._batches import chunk_rows, map_chunks
 from .._body import Body, Pose, without_names
+from .._chunk_store import ChunkStore, float_name, input_hash
 from .._solver import FitStatus, least_squares_solver, solve, tolerance
 from .._spine import spine_angles
+from .._streaming import tree_hash
 from ._cloud_start import search_start, search_tables
 from ._clouds import check_correspondences, check_spheres
 from ._sphere_residuals import (
@@ -330,6 +333,8 @@ def fit_spheres_batch(
     init: Pose | None = None,
     chunk_size: int = 256,
     progress: bool = True,
+    out: str | os.PathLike | None = None,
+    resume: bool = False,
 ) -> SphereFit:
     """`fit_spheres` of many clouds of one size at once: one compiled, vmapped fit per chunk
     of `chunk_size` clouds (the last chunk padded), with a progress bar on stderr.
@@ -337,6 +342,11 @@ def fit_spheres_batch(
     centers (b, m, 3), radii (b, m); correspondences (m,) shared or (b, m), or None; `init`
     one pose for every cloud. Returns a `SphereFit` with a leading batch axis (NumPy
     arrays); a cloud whose fit fails has status FAILED and does not stop the others.
+
+    `out`: a folder that keeps every finished chunk as it is done; an interrupt raises
+    `Interrupted` (a KeyboardInterrupt) saying how many clouds it holds, and `resume=True`
+    reads those and fits the rest (refused, naming what changed, for other clouds or
+    settings).
     """
     if not (isinstance(chunk_size, int) and chunk_size >= 1):
         raise ValueError(f"chunk_size: expected an integer >= 1, got {chunk_size!r}")
@@ -351,13 +361,21 @@ def fit_spheres_batch(
         cloud = Cloud(measured=measured.astype(dtype), match=match, known=known)
         return _fit_many_jit(template, lay, start, cloud, init is None, tables)
 
-    out = map_chunks(
+    chunk = chunk_rows(chunk_size, measured.shape[0])
+    store = None
+    if out is not None:
+        given = input_hash(centers, radii, correspondences)
+        settings = {"function": "fit_spheres_batch", "clouds": given, "fit": " ".join(fit)}
+        settings |= {"body": tree_hash(body), "init": "(none)" if init is None else tree_hash(init)}
+        store = ChunkStore.open(out, settings | {"float": float_name()}, chunk, resume)
+    fitted = map_chunks(
         run,
         (measured, none if match is None else match),
-        chunk=chunk_rows(chunk_size, measured.shape[0]),
+        chunk=chunk,
         progress=progress,
         label="fit",
         unit="cloud",
+        store=store,
     )
-    result = _result(body, template, out)
+    result = _result(body, template, fitted)
     return jax.tree.map(lambda a: np.asarray(a) if eqx.is_array(a) else a, result)

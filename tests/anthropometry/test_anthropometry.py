@@ -327,3 +327,46 @@ def test_the_scale_command(tmp_path, capsys):
     assert db.measurements(body, ("stature",))["stature"] == pytest.approx(1.65, abs=1e-4)
     assert main(argv[:4] + ["1650"] + argv[5:]) == 2  # millimetres for metres
     assert "millimetres" in capsys.readouterr().err
+
+
+def test_population_kept_in_a_folder_resumes_after_an_interrupt(subjects, tmp_path, monkeypatch):
+    """scale_population(out=): each finished chunk kept in the folder; a KeyboardInterrupt
+    inside a chunk keeps the finished ones and says how many (`Interrupted`); resume=True
+    reads them and scales the rest, giving what one uninterrupted call gives; other values
+    or another sex are refused by name."""
+    import diffbody.anthropometry._scale_to as scale_to
+    from diffbody._streaming import Interrupted
+
+    values = subjects["male"][:40, [db.MEASUREMENT_NAMES.index(k) for k in FIVE]]
+    solve, calls, stop = scale_to._solve_many_jit, [], [2]
+
+    def solve_then_stop(*args):
+        if isinstance(args[1], jax.core.Tracer):  # the outputs' structure, traced
+            return solve(*args)
+        calls.append(len(args[1]))
+        if len(calls) in stop:
+            raise KeyboardInterrupt
+        return solve(*args)
+
+    monkeypatch.setattr(scale_to, "_solve_many_jit", solve_then_stop)
+    stop.clear()
+    whole = db.scale_population(FIVE, values, sex="male", progress=False, chunk_size=16)
+    solves, stop[:] = len(calls), [len(calls) + 2]
+    kept = tmp_path / "people"
+    with pytest.raises(Interrupted, match=f"interrupted after 16 of 40 rows; {kept} holds them"):
+        db.scale_population(FIVE, values, sex="male", progress=False, chunk_size=16, out=kept)
+    assert sorted(p.name for p in kept.iterdir()) == ["part-00000.npz", "run.json"]
+    for changed, message in [
+        (dict(values=values * 1.01), "values changed from "),
+        (dict(sex="female"), "prior changed from male "),
+    ]:
+        args = dict(values=values, sex="male") | changed
+        with pytest.raises(ValueError, match=message):
+            db.scale_population(FIVE, **args, chunk_size=16, out=kept, resume=True)
+    resumed = db.scale_population(
+        FIVE, values, sex="male", progress=False, chunk_size=16, out=kept, resume=True
+    )
+    assert len(calls) - solves - 2 == solves - 1  # all but the kept chunk, solved once
+    for name in ("log_scales", "masses", "measurements", "reproduced", "converged"):
+        np.testing.assert_array_equal(getattr(resumed, name), getattr(whole, name))
+    assert len(list(kept.glob("part-*.npz"))) == 3

@@ -38,16 +38,21 @@ def person_cloud(body, seed: int, turn: float | None):
     return centers, np.asarray(radii), np.asarray(person.lengths)
 
 
-@pytest.fixture(scope="module")
-def fits(male50):
-    """One batch, one compiled program: a person turned 180 degrees, one turned any way,
-    and a cloud that is no body (spheres drawn in a box): (fit, true lengths)."""
+def three_clouds(male50):
+    """A person turned 180 degrees, one turned any way, and a cloud that is no body (spheres
+    drawn in a box): centers, radii, true lengths, stacked."""
     clouds = [person_cloud(male50, 3, np.pi), person_cloud(male50, 4, None)]
     rng = np.random.default_rng(0)
     m = len(clouds[0][1])
     box = rng.uniform([-0.5, -0.5, 0.0], [0.5, 0.5, 1.8], (m, 3))
     clouds.append((box, rng.uniform(0.01, 0.08, m), clouds[0][2]))
-    centers, radii, lengths = (np.stack(a) for a in zip(*clouds))
+    return (np.stack(a) for a in zip(*clouds))
+
+
+@pytest.fixture(scope="module")
+def fits(male50):
+    """One batch, one compiled program, of `three_clouds`: (fit, true lengths)."""
+    centers, radii, lengths = three_clouds(male50)
     fit = db.fit_spheres_batch(male50, centers, radii, chunk_size=3, progress=False)
     return fit, lengths
 
@@ -102,3 +107,36 @@ def test_the_search_tables(male50):
     seg = np.asarray(male50.sphere_segment)
     assert set(seg[keep]) == set(seg)
     assert np.array_equal(keep, search_spheres(male50))
+
+
+def test_a_batch_kept_in_a_folder_resumes_after_an_interrupt(fits, male50, tmp_path, monkeypatch):
+    """fit_spheres_batch(out=): the fixture's clouds twice, in two chunks of the same
+    compiled size; an interrupt in the second keeps the first (`Interrupted` says so);
+    resume=True reads it and fits the second: every cloud as the fixture's one call fits
+    it. Other clouds are refused by name."""
+    import diffbody.fitting._sphere_fit as sphere_fit
+    from diffbody._streaming import Interrupted
+
+    fit, _ = fits
+    centers, radii, _ = (np.concatenate([a] * 2) for a in three_clouds(male50))
+    run, calls = sphere_fit._fit_many_jit, []
+
+    def run_then_stop(*args):
+        if not isinstance(jax.tree.leaves(args[3])[0], jax.core.Tracer):
+            calls.append(1)
+            if len(calls) == 2:
+                raise KeyboardInterrupt
+        return run(*args)
+
+    monkeypatch.setattr(sphere_fit, "_fit_many_jit", run_then_stop)
+    kept = tmp_path / "clouds"
+    with pytest.raises(Interrupted, match=f"interrupted after 3 of 6 rows; {kept} holds them"):
+        db.fit_spheres_batch(male50, centers, radii, chunk_size=3, progress=False, out=kept)
+    with pytest.raises(ValueError, match="clouds changed from "):
+        db.fit_spheres_batch(male50, centers + 0.01, radii, chunk_size=3, out=kept, resume=True)
+    resumed = db.fit_spheres_batch(
+        male50, centers, radii, chunk_size=3, progress=False, out=kept, resume=True
+    )
+    assert len(calls) == 3  # the second chunk only
+    for got, want in zip(jax.tree.leaves(resumed), jax.tree.leaves(fit)):
+        np.testing.assert_array_equal(np.asarray(got), np.concatenate([np.asarray(want)] * 2))
