@@ -28,6 +28,7 @@ from ._orientation import (
 from ._posture import apply_standard_orientation, pose_from_joint_positions
 from ._render import draw, draw_cloud, render
 from ._spine import BendResult, bend_pose, bendspine, movespine, spine_angles, with_spine_angles
+from ._streaming import Interrupted
 
 # The families load on first use (PEP 562): `diffbody reach` needs neither the image nor the
 # motion-capture code, and importing every family costs a few tenths of a second.
@@ -106,13 +107,7 @@ _FAMILIES = {
         "world_markers",
         "write_trc",
     ),
-    "ik": (
-        "ReachResult",
-        "ReachStatus",
-        "Target",
-        "solve_reach",
-        "solve_reach_batch",
-    ),
+    "ik": ("BatchRun", "ReachResult", "ReachStatus", "Target", "solve_reach", "solve_reach_batch"),
     "images": (
         "ImageSequence",
         "JointTree",
@@ -241,13 +236,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         world_markers,
         write_trc,
     )
-    from .ik import (
-        ReachResult,
-        ReachStatus,
-        Target,
-        solve_reach,
-        solve_reach_batch,
-    )
+    from .ik import BatchRun, ReachResult, ReachStatus, Target, solve_reach, solve_reach_batch
     from .images import (
         ImageSequence,
         JointTree,
@@ -343,6 +332,9 @@ __all__ = [
     "Target",
     "solve_reach",
     "solve_reach_batch",
+    # Long runs: a batch written to a file as it goes
+    "BatchRun",
+    "Interrupted",
     # Anthropometry
     "MEASUREMENTS",
     "MEASUREMENT_NAMES",

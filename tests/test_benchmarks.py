@@ -42,6 +42,7 @@ BENCHMARKS = (
     "webb",
     "_sphere_cloud",
     "collision",
+    "batch",
 )
 
 

@@ -19,18 +19,21 @@ BLOCK = re.compile(r"```(python|bash)\n(.*?)```", re.S)
 EXEMPT = ("git clone", "cd ", "python -m venv", ". .venv", "pip install", "pytest")
 
 
-def _commands(script: str) -> list[list[str]]:
-    """The `diffbody` commands of a bash block, each as argv; anything else that is not
-    exempt fails the test (a README command the test would silently skip)."""
+def _commands(script: str) -> list[tuple[list[str], bool]]:
+    """The `diffbody` commands of a bash block, each as (argv, whether it runs in the
+    background: a line ending in `&`); anything else that is not exempt fails the test (a
+    README command the test would silently skip)."""
     out = []
     for line in script.splitlines():
         line = line.split("  #")[0].strip()
+        background = line.endswith(" &")
+        line = line.removesuffix(" &")
         for part in filter(None, (p.strip() for p in line.split("&&"))):
             if part.startswith(EXEMPT):
                 continue
             argv = shlex.split(part)
             assert argv[0] == "diffbody", f"README: a command the test cannot run: {part!r}"
-            out.append(argv[1:])
+            out.append((argv[1:], background))
     return out
 
 
@@ -72,20 +75,29 @@ def test_readme_runs_as_written(tmp_path, monkeypatch):
         if kind == "python":
             exec(compile(code, str(README), "exec"), namespace)
             continue
-        for argv in _commands(code):
+        behind = []  # commands started with `&`, waited for after the next one
+        for argv, background in _commands(code):
             if argv[0] == "view":
                 _view(argv, tmp_path)
-            else:
-                run = subprocess.run(
-                    [sys.executable, "-m", "diffbody", *argv],
-                    cwd=tmp_path,
-                    env=dict(os.environ),
-                    capture_output=True,
-                    text=True,
-                    timeout=900,
-                )
-                assert run.returncode == 0, (argv, run.stdout[-2000:], run.stderr[-2000:])
+                ran += 1
+                continue
+            run = subprocess.Popen(
+                [sys.executable, "-m", "diffbody", *argv],
+                cwd=tmp_path,
+                env=dict(os.environ),
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
             ran += 1
+            if background:
+                behind.append((argv, run))
+                continue
+            for argv, run in [*behind, (argv, run)]:
+                out, err = run.communicate(timeout=900)
+                assert run.returncode == 0, (argv, out[-2000:], err[-2000:])
+            behind = []
+        assert not behind, "README: a command left in the background at the end of a block"
     assert ran >= 6
     for name in ("reach.pose.json", "reach.png", "pose.png", "reaches.gif", "body.xml"):
         assert (tmp_path / name).stat().st_size > 0, name

@@ -1,6 +1,9 @@
 """Inverse kinematics: targets, the solver's unknowns and residuals, starts, the post-solve
 projection onto the standard orientation, and the single and batch reach solves."""
 
+from ._batch_run import (
+    BatchRun as BatchRun,
+)
 from ._reach import (
     ReachResult as ReachResult,
 )
