@@ -29,7 +29,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .._streaming import Interrupts, append_lines, header_text, replace_atomically, truncate
+from .._streaming import (
+    Interrupts,
+    append_lines,
+    header_text,
+    replace_atomically,
+    tree_hash,
+    truncate,
+)
 from ._trial_outputs import (
     OUTPUTS,
     load_any_markerset,
@@ -103,21 +110,6 @@ def file_sha256(path) -> str:
     return digest.hexdigest()
 
 
-def array_hash(*trees) -> str:
-    """16 hex digits naming the arrays of `trees` (as float32, so that the name does not
-    depend on JAX's precision setting): `diffbody batch`'s body-dimensions hash."""
-    import equinox as eqx
-    import jax
-
-    digest = hashlib.sha256()
-    for leaf in jax.tree.leaves(eqx.filter(trees, eqx.is_array)):
-        a = np.asarray(leaf)
-        a = a.astype(np.float32) if np.issubdtype(a.dtype, np.floating) else a
-        digest.update(f"{a.dtype}{a.shape}".encode())
-        digest.update(np.ascontiguousarray(a).tobytes())
-    return digest.hexdigest()[:16]
-
-
 def header_fields(body, static, markerset, tasks, *, keep_zeros, axes, prior, time):
     """The summary CSV's header, in the order written. `--resume` checks all but the file
     names (`static`, `tasks`: their hashes are checked) and `begun` (UTC)."""
@@ -135,9 +127,9 @@ def header_fields(body, static, markerset, tasks, *, keep_zeros, axes, prior, ti
         ("static-sha256", file_sha256(static)),
         ("body", body.name),
         ("body-structure", structure_hash(body)),
-        ("body-dimensions", array_hash(body)),
+        ("body-dimensions", tree_hash(body)),
         ("markerset", markerset.name),
-        ("markerset-hash", array_hash(layout, markerset)),
+        ("markerset-hash", tree_hash((layout, markerset))),
         ("tasks", str(tasks) if tasks else "(none)"),
         ("tasks-sha256", file_sha256(tasks) if tasks else "(none)"),
         ("keep-zeros", "on" if keep_zeros else "off"),
