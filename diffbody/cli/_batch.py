@@ -143,7 +143,8 @@ def _batch(args) -> int:
             names=OPTIONS,
             resume_option="--resume",
         )
-    except Interrupted as e:
+    except KeyboardInterrupt as e:  # Interrupted, or Ctrl-C while the targets were checked
+        e = e if isinstance(e, Interrupted) else Interrupted(2)
         if e.out is None:
             message = f"interrupted before {args.out} was begun; nothing written"
         else:

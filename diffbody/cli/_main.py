@@ -55,6 +55,9 @@ def main(argv: list[str] | None = None) -> int:
         message = f"{e.filename}: {e.strerror}" if e.filename and e.strerror else str(e)
     except ValueError as e:  # BodyFileError, a malformed CSV, UnicodeDecodeError, ...
         message = str(e)
+    except KeyboardInterrupt:  # Ctrl-C: a stop, not a crash (batch and mocap say more)
+        print("diffbody: interrupted", file=sys.stderr)
+        return 130
     print(f"diffbody: error: {message}", file=sys.stderr)
     return 2
 

@@ -342,3 +342,18 @@ def test_two_processes_merge_to_the_one_process_file(uninterrupted, tmp_path):
     merged = db.load_pose(tmp_path / "results.poses.npz")
     expected = db.load_pose(reference.with_name("results.poses.npz"))
     np.testing.assert_array_equal(merged.pose.angles, expected.pose.angles)
+
+
+def test_ctrl_c_while_the_targets_are_checked_writes_nothing(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C before the results file is begun (here while a long targets file is still
+    being checked) exits 130 without a traceback and writes nothing."""
+    import diffbody.ik._batch_run as batch_run
+
+    def stopped(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(batch_run, "scan_targets", stopped)
+    targets, results = write_targets(tmp_path / "targets.csv"), tmp_path / "results.csv"
+    assert main(arm_batch(targets, results) + ARM_BATCH) == 130
+    assert f"interrupted before {results} was begun; nothing written" in capsys.readouterr().err
+    assert not results.exists()
