@@ -147,6 +147,11 @@ def _batch(args) -> int:
         e = e if isinstance(e, Interrupted) else Interrupted(2)
         if e.out is None:
             message = f"interrupted before {args.out} was begun; nothing written"
+        elif e.done == e.total and e.out != args.out:
+            message = (
+                f"{e.out} holds this process's {e.total} rows; another process stopped before "
+                "its share was done, so nothing was merged; rerun every process with --resume"
+            )
         else:
             message = f"interrupted after {e.done} of {e.total} rows; {e.out} holds them; "
             message += "rerun with --resume"

@@ -15,6 +15,7 @@ import hashlib
 import itertools
 import os
 import shutil
+import signal
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -168,6 +169,11 @@ def stream_reach_batch(
     _finish_processes(out, fields, source.total, chunk, n_chunks, body, effectors)
     if stop is not None:
         raise stop
+    if not bf.is_complete(out, source.total):
+        # Another process was stopped before its share was done: nothing was merged, and
+        # this process's finished share waits in its part for every process's --resume.
+        size = min(share.stop * chunk, source.total) - share.start * chunk
+        raise Interrupted(signal.SIGINT, size, size, path)
     reached = bf.rows_reached(out, effectors)
     return BatchRun(out, bf.poses_path(out), source.total, reached, solved)
 

@@ -357,3 +357,33 @@ def test_ctrl_c_while_the_targets_are_checked_writes_nothing(tmp_path, capsys, m
     assert main(arm_batch(targets, results) + ARM_BATCH) == 130
     assert f"interrupted before {results} was begun; nothing written" in capsys.readouterr().err
     assert not results.exists()
+
+
+def test_a_stopped_process_leaves_every_share_to_resume(uninterrupted, tmp_path):
+    """Process 1 stopped (SIGINT) before its share is done: process 0 finishes its share,
+    nothing is merged, both exit 130 saying so; both rerun with --resume give the one
+    process's file."""
+    targets, reference = uninterrupted
+    results = tmp_path / "results.csv"
+    part = tmp_path / "results.process-1-of-2.csv"
+
+    def both(*extra):
+        address = f"localhost:{free_port()}"
+        many = ["--coordinator", address, "--num-processes", "2", *extra]
+        return [start(targets, results, *many, "--process-id", str(i)) for i in range(2)]
+
+    first, second = both()
+    deadline = time.monotonic() + 240
+    while not part.exists() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    second.send_signal(signal.SIGINT)  # while it compiles or solves its first chunk
+    (_, err0), (_, err1) = first.communicate(timeout=600), second.communicate(timeout=600)
+    assert (first.returncode, second.returncode) == (130, 130), (err0, err1)
+    assert "another process stopped before its share was done, so nothing was merged" in err0
+    assert "interrupted after " in err1 and "Traceback" not in err0 + err1
+    assert not results.exists() and part.exists()
+    for p in both("--resume"):
+        _, err = p.communicate(timeout=600)
+        assert p.returncode == 0, err
+    assert without_timestamp(results) == without_timestamp(reference)
+    assert sorted(os.listdir(tmp_path)) == ["results.csv", "results.poses.npz"]
