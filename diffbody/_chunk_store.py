@@ -25,11 +25,9 @@ FORMAT = "diffbody.chunks/1"
 
 @dataclass
 class ChunkStore:
-    """The folder `path` of a run described by `fields` (strings), chunks of `chunk` rows."""
+    """The folder `path` of a run's kept chunks."""
 
     path: str
-    fields: dict[str, str]
-    chunk: int
 
     @classmethod
     def open(cls, path, fields: dict[str, str], chunk: int, resume: bool) -> "ChunkStore":
@@ -51,13 +49,13 @@ class ChunkStore:
                     f"resume=True {path}: {'; '.join(changed)}; call again as it was begun, "
                     "or without resume to start over"
                 )
-            return cls(path, fields, chunk)
+            return cls(path)
         os.makedirs(path, exist_ok=True)
         for name in os.listdir(path):
             if re.fullmatch(r"part-\d+(\.partial)?\.npz", name):
                 os.remove(os.path.join(path, name))
         replace_atomically(record, json.dumps(fields, indent=1) + "\n")
-        return cls(path, fields, chunk)
+        return cls(path)
 
     def _part(self, index: int) -> str:
         return os.path.join(self.path, f"part-{index:05d}.npz")

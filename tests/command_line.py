@@ -23,3 +23,15 @@ def fails(argv, capsys) -> str:
     assert code == 2, err
     assert "Traceback" not in err
     return err
+
+
+def data_lines(path) -> list[str]:
+    """A streamed results file's lines after its `#` header (column names first)."""
+    return [line for line in path.read_text().splitlines(True) if not line.startswith("#")]
+
+
+def without_timestamp(path) -> str:
+    """The file's text without its `# begun:` line, the one line two runs may differ in."""
+    lines = path.read_text().splitlines(True)
+    assert sum(line.startswith("# begun: ") for line in lines) == 1
+    return "".join(line for line in lines if not line.startswith("# begun: "))

@@ -17,7 +17,6 @@ import glob
 import os
 import sys
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -137,17 +136,6 @@ def _axes(text: str | None):
     return text
 
 
-def _noted(fn, *args, **kwargs):
-    """fn's result; its warnings (markers one file has and the other lacks) printed as
-    notes, one line each, instead of Python's warning format."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        out = fn(*args, **kwargs)
-    for w in caught:
-        print(f"note: {w.message}")
-    return out
-
-
 def several_trials(motion: str) -> bool:
     """Whether the command's second argument names several trials: a folder, or a glob
     pattern that is not itself a file's name."""
@@ -249,6 +237,7 @@ def _mocap_one(args) -> int:
         save_scaled_body,
         scaled_body,
     )
+    from ..fitting._trials import noted
 
     for flag, path, suffix in (
         ("--out", args.out, ".npz"),
@@ -274,13 +263,13 @@ def _mocap_one(args) -> int:
                 f"range; its frames run {whole.times[0]:.3f}-{whole.times[-1]:.3f} s"
             )
     body = body_from_args(args)
-    markerset = _noted(load_any_markerset, args.markerset, body)
+    markerset = noted(print, load_any_markerset, args.markerset, body)
 
     t0 = time.perf_counter()
-    static_fit = _noted(scale_and_register, body, static, markerset, prior=not args.no_prior)
+    static_fit = noted(print, scale_and_register, body, static, markerset, prior=not args.no_prior)
     jax.block_until_ready(static_fit)
     scale_s = time.perf_counter() - t0
-    registered, trial = _noted(match_markers, static_fit.markerset, motion)
+    registered, trial = noted(print, match_markers, static_fit.markerset, motion)
     t0 = time.perf_counter()
     weights = None
     if tasks is not None:
@@ -290,7 +279,8 @@ def _mocap_one(args) -> int:
                 f"note: {args.tasks}: tasks for markers the fit lacks, ignored: {', '.join(unused)}"
             )
         weights = {n: w for n, w in tasks.items() if n in registered.names}
-    out = _noted(
+    out = noted(
+        print,
         fit_motion,
         static_fit.body,
         registered,

@@ -217,8 +217,9 @@ def _recorded(path: Path, fields, shas: dict[str, str | None]):
     return data[: have.start], list(zip(lines, rows)), have.ends[-1] if have.ends else have.start
 
 
-def _noted(log, fn, *args, **kwargs):
-    """fn's result; its warnings told as notes, one line each."""
+def noted(log, fn, *args, **kwargs):
+    """fn's result; its warnings (markers one file has and the other lacks) told through
+    `log` as notes, one line each, instead of Python's warning format."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         out = fn(*args, **kwargs)
@@ -314,7 +315,7 @@ def fit_trials(
     static_trial = read_markers(static, axes=axes, zero_is_gap=zero_is_gap)
     weights_of = read_ik_tasks(tasks) if tasks else None
     if isinstance(markerset, (str, os.PathLike)):
-        markerset = _noted(log, load_any_markerset, str(markerset), body)
+        markerset = noted(log, load_any_markerset, str(markerset), body)
     fields = header_fields(
         body, static, markerset, tasks, keep_zeros=keep_zeros, axes=axes, prior=prior, time=time
     )
@@ -356,7 +357,7 @@ def fit_trials(
         t0 = clock.perf_counter()
         from ._static_fit import scale_and_register
 
-        static_fit = _noted(log, scale_and_register, body, static_trial, markerset, prior=prior)
+        static_fit = noted(log, scale_and_register, body, static_trial, markerset, prior=prior)
         scaled = scaled_body(static_fit, body)
         with signals.held():
             save_scaled_body(scaled, body_files[0])
@@ -416,14 +417,14 @@ def _fit_one(path, static_fit, weights_of, tasks, time, axes, zero_is_gap, progr
                 f"--time {time[0]:g} {time[1]:g}: no frame of {path} in that range; its "
                 f"frames run {whole.times[0]:.3f}-{whole.times[-1]:.3f} s"
             )
-    registered, trial = _noted(log, match_markers, static_fit.markerset, motion)
+    registered, trial = noted(log, match_markers, static_fit.markerset, motion)
     weights = None
     if weights_of is not None:
         unused = [n for n in weights_of if n not in registered.names]
         if unused:
             log(f"note: {tasks}: tasks for markers the fit lacks, ignored: {', '.join(unused)}")
         weights = {n: w for n, w in weights_of.items() if n in registered.names}
-    fit = _noted(
+    fit = noted(
         log,
         fit_motion,
         static_fit.body,

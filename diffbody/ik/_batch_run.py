@@ -169,7 +169,7 @@ def stream_reach_batch(
     _finish_processes(out, fields, source.total, chunk, n_chunks, body, effectors)
     if stop is not None:
         raise stop
-    if not bf.is_complete(out, source.total):
+    if count > 1 and not bf.is_complete(out, source.total):
         # Another process was stopped before its share was done: nothing was merged, and
         # this process's finished share waits in its part for every process's --resume.
         size = min(share.stop * chunk, source.total) - share.start * chunk

@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 import pytest
-from command_line import ARM_BATCH, arm_batch
+from command_line import ARM_BATCH, arm_batch, data_lines, without_timestamp
 
 import diffbody as db
 from diffbody.cli._main import main
@@ -30,18 +30,6 @@ def write_targets(path, n=ROWS, seed=0):
     points = np.array([0.3, 0.2, 1.0]) + rng.uniform(-0.12, 0.12, (n, 3))
     path.write_text("x,y,z\n" + "".join(",".join(f"{v:.4f}" for v in p) + "\n" for p in points))
     return path
-
-
-def data_lines(path):
-    """The results file's lines after the `#` header (column names first)."""
-    return [line for line in path.read_text().splitlines(True) if not line.startswith("#")]
-
-
-def without_timestamp(path):
-    """The file's text without its `# begun:` line, the one line two runs may differ in."""
-    lines = path.read_text().splitlines(True)
-    assert sum(line.startswith("# begun: ") for line in lines) == 1
-    return "".join(line for line in lines if not line.startswith("# begun: "))
 
 
 @pytest.fixture(scope="module")

@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 import pytest
+from command_line import data_lines, without_timestamp
 
 import diffbody as db
 from diffbody.cli import main
@@ -51,17 +52,6 @@ def uninterrupted(recorded, tmp_path_factory):
     out = tmp_path_factory.mktemp("uninterrupted") / "fits"
     assert main(argv(static, trials, out)) == 0
     return out
-
-
-def data_lines(path):
-    return [line for line in path.read_text().splitlines(True) if not line.startswith("#")]
-
-
-def without_timestamp(path):
-    """The file's text without its `# begun:` line, the one line two runs may differ in."""
-    lines = path.read_text().splitlines(True)
-    assert sum(line.startswith("# begun: ") for line in lines) == 1
-    return "".join(line for line in lines if not line.startswith("# begun: "))
 
 
 def snapshot(folder):
