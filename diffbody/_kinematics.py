@@ -1,7 +1,8 @@
 """Forward kinematics with twist propagated to the surface (seed 000, docs/design.md, section 3).
 
-`forward` is a pure, un-jitted function of one body and one pose: compose it under
-jax.jit / jax.vmap / jax.grad. Batching is jax.vmap over poses (or bodies).
+`forward` is a pure function of one body and one pose: compose it under jax.jit / jax.vmap /
+jax.grad. Called eagerly (no array traced), it runs as one compiled program, cached per body
+structure and array shapes. Batching is jax.vmap over poses (or bodies).
 """
 
 import functools
@@ -192,6 +193,10 @@ def feature_points(
 def forward(body: Body, pose: Pose) -> Kinematics:
     """Forward kinematics of one pose (seed 000).
 
+    Eagerly (no argument traced) the walk runs compiled (`eqx.filter_jit`): op by op its
+    per-level scan would be traced again at every call. Inside a transformation it is traced
+    inline, as any pure function.
+
     One walk of the tree (`diffbody._chain.walk`): a segment's socket is its parent's
     twisted frame turned by the fixed socket rotation, its base frame is the socket times
     Rz(theta) Ry(phi) Rz(s), its distal joint lies at (0, 0, length), and its children hang
@@ -209,8 +214,17 @@ def forward(body: Body, pose: Pose) -> Kinematics:
         `Kinematics`: joint positions, frames, sphere centres and radii, feature points,
         centroids and the whole body's center of gravity.
     """
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((body, pose))):
+        return _forward(body, pose)
+    return _forward_compiled(body, pose)
+
+
+def _forward(body: Body, pose: Pose) -> Kinematics:
     R_socket_base, tau = pose_frames(body, pose)
     return forward_frames(body, R_socket_base, tau, jnp.asarray(pose.position))
+
+
+_forward_compiled = eqx.filter_jit(_forward)
 
 
 def pose_frames(body: Body, pose: Pose) -> tuple[Float[Array, "n_seg 3 3"], Float[Array, " n_seg"]]:

@@ -1,37 +1,58 @@
-"""Strict test configuration: float64 everywhere, shared bodies and compiled functions."""
+"""Strict test configuration: float64 everywhere, shared bodies and compiled functions.
+
+Two tiers: the default `pytest` runs every unit, property, derivative and reference test; the
+`slow` marker (`pytest -m slow`) holds the runs that repeat them for documentation's sake
+(notebooks, the README's and guide's code, benchmark smoke runs) and the tests that need
+processes of their own (signals, several processes). The default tier compiles at XLA's
+cheapest optimisation level; the slow tier compiles as users do.
+"""
 
 import os
-import tempfile
+from pathlib import Path
+
+import jax
+import pytest
+from hypothesis import HealthCheck, settings
+
+import diffbody as db
 
 os.environ.setdefault("MPLBACKEND", "Agg")
-# One persistent compilation cache for the whole run, shared by the pytest-xdist workers,
-# the notebooks' kernels and the command-line subprocesses (they inherit this environment
-# from the process that starts them): what one of them compiled, the others read back.
-os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", tempfile.mkdtemp(prefix="diffbody-jax-"))
-os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
-# The suite's programs are compiled far more often than they run long: XLA's cheapest
+
+
+def _cache_dir() -> str:
+    """The suite's persistent compilation cache: kept across runs on one machine, under the
+    user's cache directory, one per JAX version (a new JAX compiles anew). Set
+    JAX_COMPILATION_CACHE_DIR to use another (an empty folder measures a cold run)."""
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return str(base / "diffbody" / f"tests-jax-{jax.__version__}")
+
+
+# One persistent cache, shared by the pytest-xdist workers, the notebooks' kernels and the
+# command-line subprocesses (they inherit this environment): what one compiled, the others
+# read back. Every program is cached, however quickly it compiled: a process still traces
+# and lowers what it runs, but XLA's share of the hundreds of small programs is saved.
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", _cache_dir())
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+
+# The unit tests' programs are compiled far more often than they run long: XLA's cheapest
 # optimisation level halves the compile time of a solver (the sphere-cloud fit: 100 s ->
 # 45 s on one core) for a few times its run time (0.5 s -> 2 s). Results are the same to
-# rounding; benchmarks and users keep the default level.
-os.environ["XLA_FLAGS"] = " ".join(
-    filter(
-        None,
-        (
-            os.environ.get("XLA_FLAGS"),
-            "--xla_backend_optimization_level=0",
-            "--xla_llvm_disable_expensive_passes=true",
-        ),
-    )
-)
+# rounding. The slow tier, benchmarks and users keep the default level.
+TEST_XLA_FLAGS = ("--xla_backend_optimization_level=0", "--xla_llvm_disable_expensive_passes=true")
 
-import jax  # noqa: E402
 
-jax.config.update("jax_enable_x64", True)
+def _slow_tier(config) -> bool:
+    """Whether this run selects the slow tier alone (`-m slow`)."""
+    return config.getoption("markexpr", "").strip() == "slow"
 
-import pytest  # noqa: E402
-from hypothesis import HealthCheck, settings  # noqa: E402
 
-import diffbody as db  # noqa: E402
+def pytest_configure(config):
+    # Before any computation: XLA reads its flags when the CPU backend starts.
+    if not _slow_tier(config):
+        flags = [os.environ.get("XLA_FLAGS", ""), *TEST_XLA_FLAGS]
+        os.environ["XLA_FLAGS"] = " ".join(f for f in flags if f)
+    jax.config.update("jax_enable_x64", True)
+
 
 settings.register_profile(
     "diffbody",

@@ -55,6 +55,7 @@ def readme_tables() -> list[tuple[str, str, str]]:
     ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("script", BENCHMARKS)
 def test_benchmark_runs_and_writes_what_the_readme_shows(script, tmp_path):
     env = dict(os.environ)  # the suite's compilation cache and XLA flags (conftest.py)

@@ -12,6 +12,9 @@ import sys
 import time
 from pathlib import Path
 
+import jax
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
 GUIDE = ROOT / "docs" / "guide.md"
@@ -67,13 +70,15 @@ def _view(argv: list[str], cwd: Path) -> None:
             proc.wait()
 
 
+@pytest.mark.slow
 def test_readme_runs_as_written(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}  # one session, as a reader runs the blocks in order
     ran = 0
     for kind, code in BLOCK.findall(README.read_text()):
         if kind == "python":
-            exec(compile(code, str(README), "exec"), namespace)
+            with jax.enable_x64(False):  # as a user runs it: JAX's default float32
+                exec(compile(code, str(README), "exec"), namespace)
             continue
         behind = []  # commands started with `&`, waited for after the next one
         for argv, background in _commands(code):
@@ -103,13 +108,15 @@ def test_readme_runs_as_written(tmp_path, monkeypatch):
         assert (tmp_path / name).stat().st_size > 0, name
 
 
+@pytest.mark.slow
 def test_the_guide_runs_as_written(tmp_path, monkeypatch):
     blocks = re.findall(r"```python\n(.*?)```", GUIDE.read_text(), flags=re.S)
     assert blocks
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}
     for code in blocks:
-        exec(compile(code, str(GUIDE), "exec"), namespace)
+        with jax.enable_x64(False):  # as a user runs it: JAX's default float32
+            exec(compile(code, str(GUIDE), "exec"), namespace)
     assert (tmp_path / "pose.png").is_file()
 
 
