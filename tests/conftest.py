@@ -8,6 +8,7 @@ cheapest optimisation level; the slow tier compiles as users do.
 """
 
 import os
+import tempfile
 from pathlib import Path
 
 import jax
@@ -39,6 +40,39 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 # 45 s on one core) for a few times its run time (0.5 s -> 2 s). Results are the same to
 # rounding. The slow tier, benchmarks and users keep the default level.
 TEST_XLA_FLAGS = ("--xla_backend_optimization_level=0", "--xla_llvm_disable_expensive_passes=true")
+
+
+# A worker that dies says where: Python's fault handler prints every thread's stack on a
+# fatal signal, and each worker notes the test it is running with its memory, which the
+# controller prints when the worker goes down (`pytest_testnodedown`).
+os.environ.setdefault("PYTHONFAULTHANDLER", "1")
+WORKERS = Path(os.environ.setdefault("DIFFBODY_TEST_WORKERS", tempfile.mkdtemp(prefix="diffbody-")))
+
+
+def _memory() -> str:
+    """This process's resident memory and memory maps (Linux), for a crash report."""
+    try:
+        rss = next(ln for ln in Path("/proc/self/status").read_text().splitlines() if "VmRSS" in ln)
+        maps = len(Path("/proc/self/maps").read_text().splitlines())
+        limit = Path("/proc/sys/vm/max_map_count").read_text().strip()
+    except (OSError, StopIteration):
+        return "memory unknown"
+    return f"{' '.join(rss.split()[1:])} resident, {maps} memory maps of {limit} allowed"
+
+
+def pytest_runtest_logstart(nodeid, location):
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if worker:  # in the worker that runs the test
+        (WORKERS / worker).write_text(f"{nodeid} ({_memory()} as it began)")
+
+
+def pytest_testnodedown(node, error):
+    """In the controller: a worker that crashed, with the test it was running and its memory."""
+    if error:
+        status = WORKERS / node.gateway.id
+        what = status.read_text() if status.exists() else "no test begun"
+        reporter = node.config.pluginmanager.get_plugin("terminalreporter")
+        reporter.write_line(f"worker {node.gateway.id} crashed: {error}; it was running {what}")
 
 
 def _slow_tier(config) -> bool:
