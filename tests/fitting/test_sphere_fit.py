@@ -31,9 +31,9 @@ LANDED = 0.002  # m: a fit lands when its mean segment-length error is below thi
 
 def test_exact_clouds_with_correspondences_give_back_the_scale_factors(male50):
     """Two noiseless clouds of scaled bodies, posed and turned as a user's are (float64):
-    the batch fit recovers every axial and radial factor to 1e-6 relative and every sphere
-    to a micrometre. Today one of the two runs out of steps on the way (status not
-    converged, its factors right all the same): at least 1 of 2 converged, a floor."""
+    the batch fit converges on both and recovers every axial and radial factor to 1e-6
+    relative and every sphere to a micrometre. (Cloud 2 takes 50 steps in one stage, more
+    than the 40 a stage once had: it ran out of steps with the right answer.)"""
     clouds, truths = [], []
     for seed in (1, 2):
         key = jax.random.PRNGKey(seed)
@@ -44,8 +44,7 @@ def test_exact_clouds_with_correspondences_give_back_the_scale_factors(male50):
         truths.append((axial, radial))
     centers, radii = (np.stack(a) for a in zip(*clouds))
     fit = db.fit_spheres_batch(male50, centers, radii, correspondences=match, progress=False)
-    assert np.all(fit.status != db.FitStatus.FAILED)
-    assert np.sum(fit.status == db.FitStatus.CONVERGED) >= 1
+    np.testing.assert_array_equal(fit.status, db.FitStatus.CONVERGED)
     for i, (axial, radial) in enumerate(truths):
         np.testing.assert_allclose(fit.axial[i], axial, rtol=1e-6)
         np.testing.assert_allclose(fit.radial[i], radial, rtol=1e-6)
@@ -55,47 +54,49 @@ def test_exact_clouds_with_correspondences_give_back_the_scale_factors(male50):
     np.testing.assert_allclose(kin.sphere_centers, centers[0], atol=1e-6)
 
 
-def test_the_fit_command_on_noisy_clouds_with_outliers(male50, tmp_path, capsys):
-    """Eight clouds posed and turned as a user's are, 5 mm noise on every number, 10 % of
-    the spheres replaced by outliers, no correspondences: `diffbody fit` writes a body that
-    loads and its pose for each (and a picture). From the standard position, facing +X, few
-    land (mean segment-length error < 2 mm): today 1 of these 8, asserted as a floor. A
-    landed fit keeps the body's measured spheres and flags the outliers."""
-    landed = 0
-    for seed in range(8):
-        key = jax.random.PRNGKey(seed)
-        person, _, _ = scaled_person(male50, key)
-        pose = db.sample_pose(male50, jax.random.fold_in(key, 1), spread=SPREAD, turn=TURN)
-        centers, radii, match = db.synthetic_cloud(
-            person, pose, jax.random.fold_in(key, 2), noise=0.005, outliers=0.1
-        )
-        cloud, out = tmp_path / f"cloud{seed}.npz", tmp_path / f"fitted{seed}.json"
-        png = [] if seed else ["--png", str(tmp_path / "fit.png")]
-        np.savez(cloud, centers=np.asarray(centers), radii=np.asarray(radii))
-        assert main(["fit", str(cloud), "--out", str(out), *png]) == 0
-        text = capsys.readouterr().out
-        assert "inliers" in text and "thigh" in text
-        fitted = db.load_body(out)
-        error = np.abs(np.asarray(fitted.lengths) - np.asarray(person.lengths))
-        error = error[np.asarray(person.lengths) > 0]
-        print(f"cloud {seed}: length error mean {1e3 * error.mean():.2f} mm")
-        record = db.load_pose(tmp_path / f"fitted{seed}.pose.json", fitted)
-        if seed == 0:  # the pose file renders on the fitted body, with its cloud
-            drawn = tmp_path / "pose_file.png"
-            argv = ["render", "--pose", str(tmp_path / "fitted0.pose.json"), "--body", str(out)]
-            assert main(argv + ["--out", str(drawn)]) == 0 and drawn.stat().st_size > 10_000
-        assert record.scale["groups"] == list(db.SCALE_GROUPS) and record.kind == "pose"
-        assert len(record.scale["axial"]) == len(db.SCALE_GROUPS)
-        # The command says when a fit did not land (too few inliers), and writes it.
-        assert ("did not land" in text) == (not record.extra["landed"])
-        if error.mean() < LANDED:
-            landed += 1
-            inliers = np.asarray(record.overlays["cloud"]["inliers"])
-            outlier = np.asarray(match) < 0
-            assert np.mean(inliers[~outlier]) > 0.97  # the measured spheres of the body kept
-            assert np.mean(inliers[outlier]) < 0.2  # what a random sphere rarely is
-    assert (tmp_path / "fit.png").stat().st_size > 0
-    assert landed >= 1, f"{landed} of 8 clouds landed"
+# Two of the eight clouds (seeds 0-7) this test once fitted, both of which the fit lands:
+# mean segment-length error 1.81 mm (worst segment 18 mm) and 0.63 mm (4.2 mm) today. How
+# many such clouds land is the benchmark's (docs/benchmarks.md, sphere-cloud fits: 11 of 32
+# in this cell, against a goal of 95 %); none of the other six lands (2.2 to 9.1 mm).
+LANDING_SEEDS = (2, 5)
+
+
+@pytest.mark.parametrize("seed", LANDING_SEEDS)
+def test_the_fit_command_lands_noisy_clouds_with_outliers(male50, seed, tmp_path, capsys):
+    """A cloud posed and turned as a user's is, 5 mm noise on every number, 10 % of the
+    spheres replaced by outliers, no correspondences: `diffbody fit` lands it (mean
+    segment-length error < 2 mm), says so, keeps the body's measured spheres and flags the
+    outliers, and writes a body that loads, its pose (which renders on that body) and a
+    picture."""
+    key = jax.random.PRNGKey(seed)
+    person, _, _ = scaled_person(male50, key)
+    pose = db.sample_pose(male50, jax.random.fold_in(key, 1), spread=SPREAD, turn=TURN)
+    centers, radii, match = db.synthetic_cloud(
+        person, pose, jax.random.fold_in(key, 2), noise=0.005, outliers=0.1
+    )
+    cloud, out, png = tmp_path / "cloud.npz", tmp_path / "fitted.json", tmp_path / "fit.png"
+    np.savez(cloud, centers=np.asarray(centers), radii=np.asarray(radii))
+    assert main(["fit", str(cloud), "--out", str(out), "--png", str(png)]) == 0
+    text = capsys.readouterr().out
+    assert "inliers" in text and "thigh" in text and png.stat().st_size > 0
+    fitted = db.load_body(out)
+    error = np.abs(np.asarray(fitted.lengths) - np.asarray(person.lengths))
+    error = error[np.asarray(person.lengths) > 0]
+    assert error.mean() < LANDED, (
+        f"cloud {seed}: mean segment-length error {1e3 * error.mean():.2f} mm"
+    )
+    record = db.load_pose(tmp_path / "fitted.pose.json", fitted)
+    assert record.scale["groups"] == list(db.SCALE_GROUPS) and record.kind == "pose"
+    assert len(record.scale["axial"]) == len(db.SCALE_GROUPS)
+    # The command says when a fit did not land (too few inliers), and writes it.
+    assert record.extra["landed"] and "did not land" not in text
+    inliers = np.asarray(record.overlays["cloud"]["inliers"])
+    outlier = np.asarray(match) < 0
+    assert np.mean(inliers[~outlier]) > 0.97  # the measured spheres of the body kept
+    assert np.mean(inliers[outlier]) < 0.2  # what a random sphere rarely is
+    drawn = tmp_path / "pose_file.png"  # the pose file renders on the fitted body, with its cloud
+    argv = ["render", "--pose", str(tmp_path / "fitted.pose.json"), "--body", str(out)]
+    assert main(argv + ["--out", str(drawn)]) == 0 and drawn.stat().st_size > 10_000
 
 
 @pytest.mark.parametrize(

@@ -62,24 +62,30 @@ def length_error(fit, lengths, i) -> float:
     return float(np.mean(np.abs(np.asarray(fit.body.lengths[i]) - lengths[i])[keep]))
 
 
-# The 180-degree cloud (seed 3) does not land today (mean length error 23 mm: the search
-# leaves a limb off its place); the goal stands, unmet.
-NOT_YET = pytest.mark.xfail(strict=True, reason="the start search misses a limb of this cloud")
-
-
-@pytest.mark.parametrize(
-    "i, what", [pytest.param(0, "turned 180 degrees", marks=NOT_YET), (1, "turned any way")]
-)
-def test_a_person_turned_away_lands_without_correspondences(fits, i, what):
+def test_a_person_turned_any_way_lands_without_correspondences(fits):
     """Spread 0.3, 5 mm noise, 10 % outliers, no correspondences, no `init`: the search
-    finds the heading and the limbs, the fit lands (mean length error < 2 mm) and says so."""
+    finds the heading and the limbs, the fit lands (mean length error < 2 mm; 1.53 mm
+    today) and says so."""
     fit, lengths = fits
-    error = length_error(fit, lengths, i)
-    assert error < LANDED, f"{what}: mean segment-length error {1e3 * error:.2f} mm"
+    error = length_error(fit, lengths, 1)
+    assert error < LANDED, f"mean segment-length error {1e3 * error:.2f} mm"
     # Landed, not failed; CONVERGED is rarer (float32 or float64, the last EM rounds seldom
     # stand still within 100x the tolerance in their 6 steps: the benchmark's "converged").
-    assert fit.landed[i] and fit.status[i] != db.FitStatus.FAILED
-    assert np.mean(fit.inliers[i]) >= LANDED_INLIERS
+    assert fit.landed[1] and fit.status[1] != db.FitStatus.FAILED
+    assert np.mean(fit.inliers[1]) >= LANDED_INLIERS
+
+
+@pytest.mark.parametrize("i", [0, 1])
+def test_a_fit_of_a_person_says_whether_it_landed(fits, i):
+    """Each person's fit says landed exactly when it did (mean length error < 2 mm), and is
+    CONVERGED only then. The cloud turned 180 degrees (i = 0) does not land today (mean
+    error 16 mm, worst segment 92 mm, 72 % inliers), and its fit says so. Landing such
+    clouds is the benchmark's unmet goal (docs/benchmarks.md, sphere-cloud fits: 95 % of
+    the clouds turned any way)."""
+    fit, lengths = fits
+    error = length_error(fit, lengths, i)
+    assert bool(fit.landed[i]) == (error < LANDED), f"mean error {1e3 * error:.2f} mm"
+    assert fit.status[i] != db.FitStatus.CONVERGED or fit.landed[i]
 
 
 def test_a_cloud_that_is_no_body_is_reported_as_not_landed(fits):

@@ -97,7 +97,14 @@ def test_refinement_beats_webb_under_noise(tree, noisy_walk):
     rel_r, mpjpe_r = _errors(lifted, seq, lengths)
     assert rel_r < 0.6 * rel_w
     assert mpjpe_r < 0.8 * mpjpe_w
-    assert int(lifted.status) in (LiftStatus.CONVERGED, LiftStatus.NOT_CONVERGED)
+    # Not converged is the default budget's (LiftOptions.max_steps = 8, as in the benchmark's
+    # speed figures), not a failure: the refinement meets its tolerance here in 10 steps, at
+    # the same answer (length error 1.10 % against 1.11 % after 8; MPJPE 62.2 mm and
+    # reprojection 1.121 px both).
+    status = int(lifted.status)
+    assert status == LiftStatus.CONVERGED or (
+        status == LiftStatus.NOT_CONVERGED and int(lifted.steps) == LiftOptions().max_steps
+    )
     assert float(lifted.reprojection_rms) < 2.0  # px, at 1 px noise
     groups = tree.length_groups(True)  # symmetric lengths by default
     for k, g in enumerate(groups):
