@@ -14,9 +14,11 @@ Each chunk's rows go to the file in one write, then flush and fsync: a killed pr
 at most a final partial line, which `read_results` does not count.
 """
 
+import _thread
 import hashlib
 import os
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -52,28 +54,55 @@ class Interrupts:
     is (the chunk in flight is dropped), except inside `held()`: there the signal is noted
     and raised when the block ends, so a chunk being written is written whole. Once one
     signal is taken, further ones are ignored (a second Ctrl-C does not break the clean
-    stop). The previous handlers come back on exit. Outside the main thread (where Python
-    cannot set handlers) it does nothing."""
+    stop). An `Interrupted` that Python drops (raised in a gc callback) is raised again. The
+    previous handlers come back on exit. Outside the main thread (where Python cannot set
+    handlers) it does nothing."""
 
     def __enter__(self) -> "Interrupts":
         self._old: dict[int, object] = {}
         self._holding = 0
         self._taken: int | None = None
+        self._lost = False  # the taken signal's Interrupted was swallowed: it is sent again
         if threading.current_thread() is threading.main_thread():
             for signum in (signal.SIGINT, signal.SIGTERM):
                 self._old[signum] = signal.signal(signum, self._handle)
+            self._old_hook, sys.unraisablehook = sys.unraisablehook, self._unraisable
         return self
 
     def __exit__(self, *exc) -> None:
+        self._lost = False
         for signum, handler in self._old.items():
             signal.signal(signum, handler)
+        if self._old:
+            sys.unraisablehook = self._old_hook
 
     def _handle(self, signum, frame) -> None:
-        if self._taken is not None:
+        if self._taken is not None and not self._lost:
             return
-        self._taken = signum
+        self._taken = self._taken or signum
+        self._lost = False
         if not self._holding:
-            raise Interrupted(signum)
+            raise Interrupted(self._taken)
+
+    def _unraisable(self, unraisable) -> None:
+        """Where Python drops exceptions (a gc callback, as JAX's that runs at every
+        collection, often while it compiles; a weakref finalizer; `__del__`) the handler's
+        `Interrupted` would be printed and lost, and the run would stop only after its next
+        written chunk. It is not printed; the signal is sent again 10 ms later, once that
+        code has returned (or again, should it land in such code once more)."""
+        if not (isinstance(unraisable.exc_value, Interrupted) and self._taken is not None):
+            self._old_hook(unraisable)
+            return
+        self._lost = True
+        threading.Timer(0.01, self._send_again).start()
+
+    def _send_again(self) -> None:
+        if not self._lost:  # raised meanwhile, or the block was left
+            return
+        if hasattr(signal, "pthread_kill"):  # a real signal also ends a blocking call (sleep)
+            signal.pthread_kill(threading.main_thread().ident, self._taken)
+        else:  # Windows
+            _thread.interrupt_main(self._taken)
 
     @contextmanager
     def held(self) -> Iterator[None]:
@@ -84,6 +113,7 @@ class Interrupts:
         finally:
             self._holding -= 1
         if self._taken is not None and not self._holding:
+            self._lost = False
             raise Interrupted(self._taken)
 
 

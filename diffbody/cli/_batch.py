@@ -114,11 +114,39 @@ def start_processes(args) -> str | None:
 
 
 def _batch(args) -> int:
-    from .._streaming import Interrupted
+    from .._streaming import Interrupted, Interrupts
+
+    check_output("--out", args.out)
+    # The run stops cleanly on either signal in every phase, not only while it solves (its
+    # own handlers): SIGTERM too while the processes join, the targets are checked, the
+    # processes meet and the rows are merged.
+    with Interrupts():
+        try:
+            run = _stream(args)
+        except KeyboardInterrupt as e:  # Interrupted, or a SIGINT seen inside a JAX call
+            e = e if isinstance(e, Interrupted) else Interrupted(2)
+            if e.out is None:
+                message = f"interrupted before {args.out} was begun; nothing written"
+            elif e.done == e.total and e.out != args.out:
+                message = (
+                    f"{e.out} holds this process's {e.total} rows; another process stopped "
+                    "before its share was done, so nothing was merged; rerun every process "
+                    "with --resume"
+                )
+            else:
+                message = f"interrupted after {e.done} of {e.total} rows; {e.out} holds them; "
+                message += "rerun with --resume"
+            print(message, file=sys.stderr)
+            return e.code
+    print(f"{run.reached} of {run.rows} rows reached; wrote {run.out} and {run.poses} (postures)")
+    return 0
+
+
+def _stream(args):
+    """The run, from joining the other processes to the merged files."""
     from ..ik._batch_run import stream_reach_batch
     from ..ik._reach_batch import solve_reach_batch
 
-    check_output("--out", args.out)
     processes = start_processes(args)
     if processes:
         print(processes)
@@ -127,35 +155,18 @@ def _batch(args) -> int:
     note = check_segments(body, args.effector, args.segments)
     if note:
         print(note)
-    try:
-        run = stream_reach_batch(
-            solve_reach_batch,
-            body,
-            args.effector,
-            args.targets,
-            args.out,
-            resume=args.resume,
-            chunk_size=args.chunk_size,
-            progress=True,
-            spine=not args.no_spine,
-            segments=args.segments,
-            starts=args.starts,
-            names=OPTIONS,
-            resume_option="--resume",
-        )
-    except KeyboardInterrupt as e:  # Interrupted, or Ctrl-C while the targets were checked
-        e = e if isinstance(e, Interrupted) else Interrupted(2)
-        if e.out is None:
-            message = f"interrupted before {args.out} was begun; nothing written"
-        elif e.done == e.total and e.out != args.out:
-            message = (
-                f"{e.out} holds this process's {e.total} rows; another process stopped before "
-                "its share was done, so nothing was merged; rerun every process with --resume"
-            )
-        else:
-            message = f"interrupted after {e.done} of {e.total} rows; {e.out} holds them; "
-            message += "rerun with --resume"
-        print(message, file=sys.stderr)
-        return e.code
-    print(f"{run.reached} of {run.rows} rows reached; wrote {run.out} and {run.poses} (postures)")
-    return 0
+    return stream_reach_batch(
+        solve_reach_batch,
+        body,
+        args.effector,
+        args.targets,
+        args.out,
+        resume=args.resume,
+        chunk_size=args.chunk_size,
+        progress=True,
+        spine=not args.no_spine,
+        segments=args.segments,
+        starts=args.starts,
+        names=OPTIONS,
+        resume_option="--resume",
+    )

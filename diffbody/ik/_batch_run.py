@@ -156,6 +156,7 @@ def stream_reach_batch(
         print(f"resuming {out} after {source.total} of {source.total} rows: it is complete")
         return BatchRun(out, bf.poses_path(out), source.total, bf.rows_reached(out, effectors), 0)
     path = bf.process_path(out, process, count)
+    size = min(share.stop * chunk, source.total) - share.start * chunk
     stop = None
     with Interrupts() as signals:
         try:
@@ -165,14 +166,18 @@ def stream_reach_batch(
             )  # fmt: skip
         except Interrupted as e:
             stop = e
-    # The signal handlers are back: a second Ctrl-C while the processes meet is Python's.
-    _finish_processes(out, fields, source.total, chunk, n_chunks, body, effectors)
+    # The signal handlers are back: a second Ctrl-C while the processes meet is the caller's.
+    try:
+        _finish_processes(out, fields, source.total, chunk, n_chunks, body, effectors)
+    except KeyboardInterrupt as e:  # the share is written; the merge goes on with --resume
+        if stop is None:
+            signum = e.signum if isinstance(e, Interrupted) else signal.SIGINT
+            stop = Interrupted(signum, size, size, path)
     if stop is not None:
         raise stop
     if count > 1 and not bf.is_complete(out, source.total):
         # Another process was stopped before its share was done: nothing was merged, and
         # this process's finished share waits in its part for every process's --resume.
-        size = min(share.stop * chunk, source.total) - share.start * chunk
         raise Interrupted(signal.SIGINT, size, size, path)
     reached = bf.rows_reached(out, effectors)
     return BatchRun(out, bf.poses_path(out), source.total, reached, solved)

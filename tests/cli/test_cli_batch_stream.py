@@ -7,10 +7,13 @@ the in-process runs. Those (diffbody.cli._main.main) are the cheaper rest.
 """
 
 import csv
+import gc
 import os
+import queue
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
@@ -42,9 +45,9 @@ def uninterrupted(tmp_path_factory):
     return targets, results
 
 
-def start(targets, results, *extra):
-    """`diffbody batch` in a process of its own, float64 as the tests run."""
-    env = dict(os.environ, JAX_ENABLE_X64="1")
+def start(targets, results, *extra, **environ):
+    """`diffbody batch` in a process of its own, float64 as the tests run (and `environ`)."""
+    env = dict(os.environ, JAX_ENABLE_X64="1", **environ)
     argv = [sys.executable, "-m", "diffbody"] + arm_batch(targets, results) + ARM_BATCH
     return subprocess.Popen(
         argv + list(extra), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -65,6 +68,84 @@ def stop_after(process, results, rows, signum):
     return process.returncode, out, err
 
 
+def stop_while_compiling(process, signum):
+    """Send `signum` once XLA has spent a second on one program (the process logs each
+    program's lowering, then its compile: JAX_LOG_COMPILES); the exit status and stderr."""
+    seen, lines = [], queue.Queue()
+
+    def read():
+        for line in process.stderr:
+            seen.append(line)
+            lines.put(line)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    with process:  # closes the pipes
+        deadline, lowered = time.monotonic() + 240, False
+        while time.monotonic() < deadline and process.poll() is None:
+            try:
+                lowered = "Finished jaxpr to MLIR module conversion" in lines.get(timeout=1)
+            except queue.Empty:
+                if lowered:
+                    break
+        assert process.poll() is None and lowered, "".join(seen)
+        process.send_signal(signum)
+        process.wait(timeout=120)
+        reader.join(timeout=10)
+    return process.returncode, "".join(seen)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_run_stopped_while_it_compiles_exits_cleanly(
+    uninterrupted, tmp_path, capsys, signum, code
+):
+    """A signal while XLA compiles the solver (an empty compilation cache), before any chunk
+    is written: the compile goes on in XLA's threads, and the process still exits with the
+    signal's status at once, not of a segmentation fault at its teardown (139), with the
+    file begun and nothing half-written; --resume gives the uninterrupted run's file."""
+    targets, reference = uninterrupted
+    results = tmp_path / "results.csv"
+    cold = dict(JAX_COMPILATION_CACHE_DIR=str(tmp_path / "cache"), JAX_LOG_COMPILES="1")
+    status, err = stop_while_compiling(start(targets, results, **cold), signum)
+    assert status == code, err
+    for crash in ("Traceback", "KeyboardInterrupt", "Fatal Python error", "Exception ignored"):
+        assert crash not in err, err
+    message = f"interrupted after 0 of {ROWS} rows; {results} holds them; rerun with --resume"
+    assert message in err
+    assert sorted(os.listdir(tmp_path)) == ["cache", "results.csv"]
+    assert len(data_lines(results)) == 1  # the column names, no row
+
+    assert main(arm_batch(targets, results) + ARM_BATCH + ["--resume"]) == 0
+    assert f"resuming {results} after 0 of {ROWS} rows" in capsys.readouterr().out
+    assert without_timestamp(results) == without_timestamp(reference)
+
+
+def test_a_signal_taken_where_python_ignores_exceptions_still_stops(capsys):
+    """A signal handled in a gc callback (JAX's runs at every collection, often during a
+    compile) or a __del__, where Python prints the exception and goes on, still stops the
+    run: it is sent again once that code has returned, and nothing is printed."""
+    from diffbody._streaming import Interrupted, Interrupts
+
+    sent = []
+
+    def callback(phase, info):
+        if phase == "start" and not sent:
+            sent.append(phase)
+            signal.raise_signal(signal.SIGINT)  # handled here, in the callback
+
+    gc.callbacks.append(callback)
+    try:
+        with pytest.raises(Interrupted) as stopped, Interrupts():
+            gc.collect()
+            time.sleep(10)  # the signal comes again, and ends the sleep
+    finally:
+        gc.callbacks.remove(callback)
+    assert sent and stopped.value.code == 130
+    assert "Exception ignored" not in capsys.readouterr().err
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_an_interrupted_run_keeps_its_chunks_and_resumes(
     uninterrupted, tmp_path, capsys, signum, code
@@ -95,6 +176,7 @@ def test_an_interrupted_run_keeps_its_chunks_and_resumes(
     np.testing.assert_array_equal(merged.extra["steps"], expected.extra["steps"])
 
 
+@pytest.mark.slow
 def test_a_killed_run_leaves_whole_rows_and_resumes(uninterrupted, tmp_path, capsys):
     """SIGKILL gives the run no say: what it leaves is whole rows; a partial last line and
     rows beyond the last whole chunk (as a crash in the middle of a write could leave) are
@@ -309,6 +391,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_two_processes_merge_to_the_one_process_file(uninterrupted, tmp_path):
     """Two processes on this machine through jax.distributed (CPU, gloo): each solves half
     the chunks into its own part, process 0 merges them; the result is the one-process
@@ -347,6 +430,56 @@ def test_ctrl_c_while_the_targets_are_checked_writes_nothing(tmp_path, capsys, m
     assert not results.exists()
 
 
+def test_sigterm_while_the_targets_are_checked_writes_nothing(tmp_path, capsys, monkeypatch):
+    """SIGTERM before the results file is begun is told as Ctrl-C is: exit 143, nothing
+    written."""
+    import diffbody.ik._batch_run as batch_run
+
+    def stopped(*args):
+        signal.raise_signal(signal.SIGTERM)
+        time.sleep(10)  # the command's handler ends it
+
+    def unhandled(signum, frame):  # rather than ending pytest
+        pytest.fail("the command left SIGTERM to the default handler")
+
+    monkeypatch.setattr(batch_run, "scan_targets", stopped)
+    targets, results = write_targets(tmp_path / "targets.csv"), tmp_path / "results.csv"
+    before = signal.signal(signal.SIGTERM, unhandled)
+    try:
+        assert main(arm_batch(targets, results) + ARM_BATCH) == 143
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    assert f"interrupted before {results} was begun; nothing written" in capsys.readouterr().err
+    assert not results.exists()
+
+
+def test_ctrl_c_while_the_postures_are_merged_says_so_and_resumes(
+    uninterrupted, tmp_path, capsys, monkeypatch
+):
+    """A Ctrl-C once every row is written, while the chunks' postures are merged: told as
+    the rows it holds (not as nothing written), exit 130; --resume merges them."""
+    import diffbody.ik._batch_run as batch_run
+
+    targets, reference = uninterrupted
+    results = tmp_path / "results.csv"
+    merge, calls = batch_run.merge_postures, []
+
+    def stopped(*args):
+        calls.append(1)
+        if len(calls) == 1:
+            raise KeyboardInterrupt
+        merge(*args)
+
+    monkeypatch.setattr(batch_run, "merge_postures", stopped)
+    assert main(arm_batch(targets, results) + ARM_BATCH) == 130
+    message = f"interrupted after {ROWS} of {ROWS} rows; {results} holds them; rerun with --resume"
+    assert message in capsys.readouterr().err
+    assert main(arm_batch(targets, results) + ARM_BATCH + ["--resume"]) == 0
+    assert without_timestamp(results) == without_timestamp(reference)
+    assert sorted(os.listdir(tmp_path)) == ["results.csv", "results.poses.npz"]
+
+
+@pytest.mark.slow
 def test_a_stopped_process_leaves_every_share_to_resume(uninterrupted, tmp_path):
     """Process 1 stopped (SIGINT) before its share is done: process 0 finishes its share,
     nothing is merged, both exit 130 saying so; both rerun with --resume give the one

@@ -132,6 +132,7 @@ def stop_after_first(process, out, signum):
     return process.returncode, err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_an_interrupted_run_keeps_its_trials_and_resumes(
     recorded, uninterrupted, tmp_path, capsys, signum, code
@@ -155,6 +156,7 @@ def test_an_interrupted_run_keeps_its_trials_and_resumes(
     assert_same_fits(out, uninterrupted)
 
 
+@pytest.mark.slow
 def test_a_killed_run_leaves_whole_files_and_resumes(recorded, uninterrupted, tmp_path, capsys):
     """(c) SIGKILL gives the run no say: what it leaves is whole files and whole rows, or
     temporaries named `.partial`; --resume removes those (and a partial last line, as a
