@@ -8,6 +8,7 @@ of work is a sub-package: `files`, `anthropometry`, `contact`, `ik`, `fitting`, 
 import importlib
 from typing import TYPE_CHECKING
 
+from . import _memory_maps  # noqa: F401  (empties JAX's caches before the map limit crashes XLA)
 from ._body import Body, Pose, Spine
 from ._descriptors import descriptors
 from ._joint_angles import angle_names, joint_angles, opensim_sign

@@ -16,6 +16,7 @@ import pytest
 from hypothesis import HealthCheck, settings
 
 import diffbody as db
+from diffbody._memory_maps import memory_maps
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
@@ -64,6 +65,15 @@ def pytest_runtest_logstart(nodeid, location):
     worker = os.environ.get("PYTEST_XDIST_WORKER")
     if worker:  # in the worker that runs the test
         (WORKERS / worker).write_text(f"{nodeid} ({_memory()} as it began)")
+
+
+def pytest_runtest_teardown(item):
+    """A worker past half the kernel's memory-map limit empties JAX's caches between two
+    tests (diffbody._memory_maps: near the limit XLA's compiler crashes), before the
+    library's own watch would, which warns."""
+    counted = memory_maps()
+    if counted is not None and counted[0] > counted[1] // 2:
+        jax.clear_caches()
 
 
 def pytest_testnodedown(node, error):
