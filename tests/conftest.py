@@ -124,8 +124,30 @@ def fk_male50(male50):
     return jax.jit(lambda pose: db.forward(male50, pose))
 
 
+# The files that take longest (minutes on 2 cores, most of it compiling), longest first:
+# scheduled first, so that the two workers finish together instead of one waiting on a long
+# file collected last. The notebooks and the README lead the slow tier.
+LONGEST = (
+    "test_notebooks.py",
+    "test_readme.py",
+    "test_constraints.py",
+    "test_mocap.py",
+    "test_sphere_fit.py",
+    "test_cli_mocap.py",
+    "test_posture.py",
+    "test_cli_reach.py",
+    "test_reach.py",
+    "test_batch.py",
+    "test_points.py",
+    "test_spine.py",
+    "test_cli_webb.py",
+    "test_kinematics.py",
+)
+
+
 def pytest_collection_modifyitems(items):
-    """The longest tests first (the notebooks, the README), so that the two workers finish
-    together instead of one waiting on a long test collected last."""
-    first = ("test_notebooks.py", "test_readme.py")
-    items.sort(key=lambda item: item.nodeid.split("::")[0].split("/")[-1] not in first)
+    def rank(item) -> int:
+        name = item.nodeid.split("::")[0].split("/")[-1]
+        return LONGEST.index(name) if name in LONGEST else len(LONGEST)
+
+    items.sort(key=rank)  # stable: within a file, and among the rest, as collected
