@@ -43,6 +43,7 @@ BENCHMARKS = (
     "_sphere_cloud",
     "collision",
     "batch",
+    "startup",
 )
 
 
