@@ -4,13 +4,10 @@ depth buffer in NumPy and placed in matplotlib axes (orthographic views)."""
 from collections.abc import Sequence
 from pathlib import Path
 
-import equinox as eqx
 import numpy as np
 
 from ._body import Body, Pose, without_names
 from ._kinematics import forward
-
-_forward_jit = eqx.filter_jit(forward)  # one compiled call (eagerly: hundreds of small ones)
 
 VIEWS = {  # (azimuth, elevation) of the camera, degrees; azimuth from +X toward +Y
     "front": (0.0, 0.0),
@@ -136,8 +133,9 @@ def draw(
     the axes' resolution, placed in screen metres, so outlines and points drawn after it
     (`draw_cloud`) land on the body."""
     # The names are static fields but no input of the kinematics: without them, bodies of
-    # one structure (scaled ones, say) share the compiled forward.
-    fk = _forward_jit(without_names(body), pose)
+    # one structure (scaled ones, say) share the compiled forward, and so does a reach's
+    # set-up (the floor and the planted feet under the rest pose).
+    fk = forward(without_names(body), pose)
     centers = np.asarray(fk.sphere_centers, dtype=float)
     radii = np.asarray(fk.sphere_radii, dtype=float)
     to_camera, right, up, label = camera(view)

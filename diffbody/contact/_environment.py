@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from .._device_arrays import device_array
 from .._rotations import safe_norm
 
 
@@ -82,10 +83,9 @@ class Environment(eqx.Module):
         capsules_a = _rows("capsules (a, b, radius)", capsule_rows, 7)
         if np.any(spheres_a[:, 3] < 0) or np.any(capsules_a[:, 6] < 0):
             raise ValueError("Environment: radii must be >= 0")
-        dtype = jnp.result_type(float)
         return cls(
             *(
-                jnp.asarray(a, dtype)
+                device_array(a)
                 for a in (
                     _rows("planes", plane_rows, 4),
                     spheres_a,

@@ -56,23 +56,27 @@ def _hull_corners(xy: np.ndarray) -> np.ndarray:
     return np.asarray(sorted(set(corners)) if len(corners) >= 3 else order, int)
 
 
-def support_edges(xy: Float[Array, "k 2"]) -> tuple[Array, Array, Array]:
+def support_edges(
+    xy: Float[Array | np.ndarray, "k 2"],
+) -> tuple[Array | np.ndarray, Array | np.ndarray, Array | np.ndarray]:
     """The support polygon of contact points xy (k >= 1) as half-planes n . p <= h over
     every ordered pair of points (k^2 candidates): unit outward normals (k^2, 2), offsets
     (k^2,) and which are edges of the convex hull (k^2,). An edge is a pair with every point
     on or inside its line; traceable (no host hull). A single point or a line's hull is
-    degenerate: its edges pass through it, and the inside distance is <= 0."""
+    degenerate: its edges pass through it, and the inside distance is <= 0. A NumPy xy is
+    worked in NumPy (host set-up: no program compiled), anything else in JAX."""
+    xp = np if isinstance(xy, np.ndarray) else jnp
     k = xy.shape[0]
-    a = jnp.repeat(xy, k, axis=0)
-    b = jnp.tile(xy, (k, 1))
+    a = xp.repeat(xy, k, axis=0)
+    b = xp.tile(xy, (k, 1))
     t = b - a
-    n = jnp.stack([t[:, 1], -t[:, 0]], axis=-1)  # right of a -> b: outward for a CCW hull
-    length = jnp.sqrt(jnp.sum(n * n, -1))
+    n = xp.stack([t[:, 1], -t[:, 0]], axis=-1)  # right of a -> b: outward for a CCW hull
+    length = xp.sqrt(xp.sum(n * n, -1))
     ok = length > 1e-9
-    n = n / jnp.where(ok, length, 1.0)[:, None]
-    h = jnp.sum(n * a, -1)
+    n = n / xp.where(ok, length, 1.0)[:, None]
+    h = xp.sum(n * a, -1)
     side = xy @ n.T - h[None]  # (k, k^2)
-    edge = ok & jnp.all(side <= 1e-9, axis=0)
+    edge = ok & xp.all(side <= 1e-9, axis=0)
     return n, h, edge
 
 

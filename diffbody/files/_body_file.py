@@ -11,10 +11,10 @@ from collections import deque
 from pathlib import Path
 
 import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 
 from .._body import CENTER_OF_GRAVITY, WHOLE_BODY, Body, rest_geometry
+from .._device_arrays import device_array
 from .._orientation import LIMBS
 from .._rotations import cross_of_axes
 from ._data_files import BodyFileError as BodyFileError
@@ -361,31 +361,25 @@ def _build(name: str, source: str, root_name: str, segs: list[dict], depths: lis
         feature_sphere=tuple(feature_sphere),
         root_joint=1,
         default_root_joint=1,
-        lengths=_array([0.0] + [s["length"] for s in segs]),
-        R_parent_socket=_array(R_parent_socket),
-        R_socket_rest=_array(R_rest),
-        swing_lo=_array([x[1] for x in lim]),
-        swing_hi=_array([x[2] for x in lim]),
-        swing_max=_array([x[3] for x in lim]),
-        twist_lo=_array([max(x[4], -big) for x in lim]),
-        twist_hi=_array([min(x[5], big) for x in lim]),
-        masses=_array([0.0] + [s["mass"] for s in segs]),
-        centroids=_array(np.stack([np.zeros(3)] + [s["centroid"] for s in segs])),
-        sphere_origins=_array(np.asarray(origins).reshape(-1, 3)),
-        sphere_radii=_array(np.asarray(radii)),
-        feature_directions=_array(np.asarray(feature_dirs).reshape(-1, 3)),
-        enclosure_z=_array([e[0] for e in enclosure]),
-        enclosure_radii=_array([e[1] for e in enclosure]),
-        rest_position=_array(np.zeros(3)),
-        R_world_pin_rest=_array(np.eye(3)),
+        lengths=device_array([0.0] + [s["length"] for s in segs]),
+        R_parent_socket=device_array(R_parent_socket),
+        R_socket_rest=device_array(R_rest),
+        swing_lo=device_array([x[1] for x in lim]),
+        swing_hi=device_array([x[2] for x in lim]),
+        swing_max=device_array([x[3] for x in lim]),
+        twist_lo=device_array([max(x[4], -big) for x in lim]),
+        twist_hi=device_array([min(x[5], big) for x in lim]),
+        masses=device_array([0.0] + [s["mass"] for s in segs]),
+        centroids=device_array(np.stack([np.zeros(3)] + [s["centroid"] for s in segs])),
+        sphere_origins=device_array(np.asarray(origins).reshape(-1, 3)),
+        sphere_radii=device_array(np.asarray(radii)),
+        feature_directions=device_array(np.asarray(feature_dirs).reshape(-1, 3)),
+        enclosure_z=device_array([e[0] for e in enclosure]),
+        enclosure_radii=device_array([e[1] for e in enclosure]),
+        rest_position=device_array(np.zeros(3)),
+        R_world_pin_rest=device_array(np.eye(3)),
     )
     return _stand_on_ground(body)
-
-
-def _array(values) -> jnp.ndarray:
-    """A device array of JAX's default float type from host values, built in NumPy and moved
-    once (jnp.asarray of a Python list compiles a small program per call)."""
-    return jnp.asarray(np.asarray(values, dtype=jnp.result_type(float)))
 
 
 def _stand_on_ground(body: Body) -> Body:
@@ -394,4 +388,4 @@ def _stand_on_ground(body: Body) -> Body:
     _, centers = rest_geometry(body)
     radii = np.asarray(body.sphere_radii)
     lowest = float(np.min(centers[:, 2] - radii)) if body.n_spheres else 0.0
-    return eqx.tree_at(lambda b: b.rest_position, body, _array([0.0, 0.0, -lowest]))
+    return eqx.tree_at(lambda b: b.rest_position, body, device_array([0.0, 0.0, -lowest]))

@@ -7,10 +7,10 @@ the field and what is expected.
 import math
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 
 from .._body import WHOLE_BODY, Spine
+from .._device_arrays import device_array
 from ._data_files import Where, bounded, data_file, read_json
 from ._schema import (
     AXIS_OFFSET_MM,
@@ -24,12 +24,6 @@ from ._schema import (
     SPINE_TOP_FIELDS,
     VERTEBRA_SIZE_MM,
 )
-
-
-def _array(values) -> jnp.ndarray:
-    """A device array of JAX's default float type, built in NumPy and moved once (jnp
-    arithmetic on freshly loaded values compiles a small program per operation)."""
-    return jnp.asarray(np.asarray(values, dtype=jnp.result_type(float)))
 
 
 def load_spine(path: str | Path | None = None) -> Spine:
@@ -144,10 +138,10 @@ def load_spine(path: str | Path | None = None) -> Spine:
         initiator=names.index(initiator),
         segment_names=tuple(r["segment"] for r in rows),
         vertebra_names=tuple(expected),
-        rest=_array(np.stack([r["rest"] for r in rows])),
-        lower=_array([r["lower"] for r in rows]),
-        upper=_array([r["upper"] for r in rows]),
-        disc_heights=_array(np.asarray([r["disc"] for r in rows]) / 1000.0),
-        flexion_axis_offsets=_array(np.asarray([r["offset"] for r in rows]) / 1000.0),
-        vertebra_sizes=_array(np.reshape(sizes, (-1, 3)) / 1000.0),
+        rest=device_array(np.stack([r["rest"] for r in rows])),
+        lower=device_array([r["lower"] for r in rows]),
+        upper=device_array([r["upper"] for r in rows]),
+        disc_heights=device_array(np.asarray([r["disc"] for r in rows]) / 1000.0),
+        flexion_axis_offsets=device_array(np.asarray([r["offset"] for r in rows]) / 1000.0),
+        vertebra_sizes=device_array(np.reshape(sizes, (-1, 3)) / 1000.0),
     )

@@ -18,7 +18,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._body import Body, Pose
+from .._body import Body, Pose, without_names
+from .._device_arrays import device_array
 from .._kinematics import forward
 from ..contact._distances import closest_pair_gaps, environment_gaps
 from ..contact._environment import Environment
@@ -83,7 +84,11 @@ def resolve_constraints(body: Body, targets: Sequence, init: Pose) -> Constraint
     if key not in _HOST:
         _HOST[key] = _host_constraints(body, targets)
     c = _HOST[key]
-    return _plant_jit(body, c, init) if c.sole.shape[0] else c
+    if not c.sole.shape[0]:
+        return c
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves((body, c, init))):
+        return _plant_jit(body, c, init)
+    return _plant_host(body, c, init)
 
 
 _HOST: dict = {}
@@ -173,31 +178,33 @@ def _host_constraints(body: Body, targets: Sequence) -> Constraints:
     heights = {body.segment_index(n): t.height for t in floors for n in t.segments}
     n_sole = len(soles)
     read = {seg_of[s] for s in spheres} | (set(range(body.n_segments)) if balance else set())
+    if any(isinstance(heights[seg_of[s]], jax.core.Tracer) for s in soles):
+        sole_height = jnp.stack([jnp.asarray(heights[seg_of[s]], dtype) for s in soles])
+    else:
+        sole_height = device_array([heights[seg_of[s]] for s in soles])
     return Constraints(
         kinds=kinds,
         spheres=spheres,
         segments=tuple(sorted(int(s) for s in read)),
         feet=tuple(feet),
         n_pair_groups=0 if self_pairs is None else len(self_pairs.segments),
-        pair_a=jnp.asarray(empty if self_pairs is None else remap(self_pairs.i)),
-        pair_b=jnp.asarray(empty if self_pairs is None else remap(self_pairs.j)),
-        pair_group=jnp.asarray(empty if self_pairs is None else self_pairs.segment_pair),
-        allowance=jnp.asarray(np.zeros(0) if self_pairs is None else self_pairs.allowance, dtype),
-        pair_margin=jnp.asarray(max([t.margin for t in selfish], default=0.0), dtype),
+        pair_a=device_array(empty if self_pairs is None else remap(self_pairs.i), int),
+        pair_b=device_array(empty if self_pairs is None else remap(self_pairs.j), int),
+        pair_group=device_array(empty if self_pairs is None else self_pairs.segment_pair, int),
+        allowance=device_array(np.zeros(0) if self_pairs is None else self_pairs.allowance),
+        pair_margin=device_array(max([t.margin for t in selfish], default=0.0)),
         env=env,
-        env_sphere=jnp.asarray(remap(env_spheres) if env_spheres else empty),
-        env_group=jnp.asarray(np.asarray([env_segs.index(seg_of[s]) for s in env_spheres], int)),
+        env_sphere=device_array(remap(env_spheres) if env_spheres else empty, int),
+        env_group=device_array([env_segs.index(seg_of[s]) for s in env_spheres], int),
         n_env_groups=len(env_segs),
-        env_margin=jnp.asarray(_env_margins(body, env_targets, env_segs), dtype),
-        sole=jnp.asarray(remap(soles) if n_sole else empty),
-        sole_height=jnp.stack([jnp.asarray(heights[seg_of[s]], dtype) for s in soles])
-        if n_sole
-        else jnp.zeros(0, dtype),
-        sole_center=jnp.zeros((n_sole, 3), dtype),
-        edge_normal=jnp.zeros((n_sole**2, 2), dtype),
-        edge_offset=jnp.zeros(n_sole**2, dtype),
-        edge=jnp.zeros(n_sole**2, bool),
-        balance_margin=jnp.asarray(max([t.margin for t in balance], default=0.0), dtype),
+        env_margin=device_array(_env_margins(body, env_targets, env_segs)),
+        sole=device_array(remap(soles) if n_sole else empty, int),
+        sole_height=sole_height,
+        sole_center=device_array(np.zeros((n_sole, 3))),
+        edge_normal=device_array(np.zeros((n_sole**2, 2))),
+        edge_offset=device_array(np.zeros(n_sole**2)),
+        edge=device_array(np.zeros(n_sole**2, bool), bool),
+        balance_margin=device_array(max([t.margin for t in balance], default=0.0)),
     )
 
 
@@ -216,6 +223,22 @@ def _plant(body: Body, c: Constraints, init: Pose) -> Constraints:
 
 
 _plant_jit = eqx.filter_jit(_plant)
+
+
+def _plant_host(body: Body, c: Constraints, init: Pose) -> Constraints:
+    """`_plant` with concrete inputs: the compiled `forward` that every pose of the body
+    structure shares, the rest in NumPy (a program of its own would compile for set-up only;
+    docs/design.md, section 9, "Host set-up")."""
+    k = forward(without_names(body), init)
+    idx = np.asarray(c.spheres)[np.asarray(c.sole)]
+    center = np.asarray(k.sphere_centers)[idx]
+    center[:, 2] = np.asarray(c.sole_height) + np.asarray(body.sphere_radii)[idx]
+    normals, offsets, edge = support_edges(center[:, :2])
+    return eqx.tree_at(
+        lambda c: (c.sole_center, c.edge_normal, c.edge_offset, c.edge),
+        c,
+        tuple(jax.device_put(a) for a in (center, normals, offsets, edge)),
+    )
 
 
 # The margin of a segment and shape that no target pairs: its row never binds.
@@ -243,7 +266,7 @@ def _env_margins(body: Body, targets: list, env_segs: list[int]) -> np.ndarray:
 def _merged(envs: list[Environment]) -> Environment:
     if not envs:
         return Environment.of()
-    return jax.tree.map(lambda *a: jnp.concatenate(a), *envs)
+    return jax.tree.map(lambda *a: device_array(np.concatenate(a)), *envs)
 
 
 def constraint_rows(

@@ -11,7 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._body import Body, Pose
+from .._body import Body, Pose, without_names
+from .._device_arrays import device_array
 from .._kinematics import forward
 from ..contact._environment import Environment
 from ..contact._support import sole_spheres
@@ -218,11 +219,11 @@ def resolve_targets(body: Body, targets: Sequence[Target]) -> tuple[TargetSet, l
 
 
 def _stacked(values: list, shape: tuple[int, ...]) -> Array:
-    """The values as one array of JAX's default float type: built in NumPy and moved once
-    (a warm solve's host work), or stacked in JAX when one is traced (under jit, grad)."""
+    """The values as one array of JAX's default float type: built in NumPy and put on the
+    device (no program compiled), or stacked in JAX when one is traced (under jit, grad)."""
     if any(isinstance(v, jax.core.Tracer) for v in values):
         return jnp.stack([jnp.asarray(v) for v in values]).reshape(shape)
-    return jnp.asarray(np.asarray(values, dtype=jnp.result_type(float)).reshape(shape))
+    return device_array(np.reshape(np.asarray(values, dtype=jnp.result_type(float)), shape))
 
 
 def mask_invalid(targets: TargetSet) -> tuple[TargetSet, Array, Array]:
@@ -252,6 +253,15 @@ def _floor(body: Body, soles: Array, init: Pose) -> Array:
 _floor_jit = eqx.filter_jit(_floor)
 
 
+def _floor_host(body: Body, soles: np.ndarray, init: Pose) -> float:
+    """`_floor` with concrete inputs: the compiled `forward` that every pose of the body
+    structure shares, the rest in NumPy (a program of its own would compile for set-up only;
+    docs/design.md, section 9, "Host set-up")."""
+    k = forward(without_names(body), init)
+    centers, radii = np.asarray(k.sphere_centers), np.asarray(k.sphere_radii)
+    return float(np.min(centers[soles, 2] - radii[soles]))
+
+
 def standing(body: Body, init: Pose, height: float | None = None) -> list:
     """The targets of a standing body: the feet planted where they are in `init` (on the
     floor at the lowest of their sole spheres), the centre of gravity over them (2 cm
@@ -259,9 +269,11 @@ def standing(body: Body, init: Pose, height: float | None = None) -> list:
     if not all(n in body.segment_names for n in FEET):
         return []
     if height is None:
-        height = _floor_jit(body, sole_spheres(body, FEET), init)
-        if not isinstance(height, jax.core.Tracer):
-            height = float(height)
+        soles = sole_spheres(body, FEET)
+        if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves((body, init))):
+            height = _floor_jit(body, soles, init)
+        else:
+            height = _floor_host(body, soles, init)
     return [
         Target.on_floor(FEET, height=height),
         Target.balance(),
