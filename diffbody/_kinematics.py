@@ -6,6 +6,7 @@ structure and array shapes. Batching is jax.vmap over poses (or bodies).
 """
 
 import functools
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
@@ -18,10 +19,13 @@ from ._chain import Chain, make_chain, walk
 from ._orientation import (
     LIMBS,
     azimuth_polar_to_vector,
-    standard_frame,
+    orientation_matrix,
+    standard_spin,
+    standard_twist_coded,
     vector_to_azimuth_polar,
 )
 from ._rotations import (
+    eps_for,
     exp_rotvec,
     matmul3,
     matvec3,
@@ -58,31 +62,45 @@ def socket_frames(
     standard direction to the current one, applied to the standard-position frame.
     """
     idx = np.arange(body.n_segments) if idx is None else np.asarray(idx)
-    kinds = [body.standard_kind[i] for i in idx]
+    code = table_codes(body, idx)
     theta, phi = angles[:, THETA], angles[:, PHI]
-    d = azimuth_polar_to_vector(theta, phi)
-    R_rest = body.R_socket_rest[idx]
-    R = matmul3(swing_rotation(R_rest[:, :, 2], d), R_rest)
-    for limb in sorted(set(kinds) - {"swing"}):
-        k = np.flatnonzero([kind == limb for kind in kinds])
-        t, p = theta[k], phi[k]
-        R = R.at[k].set(standard_frame(t, p, limb))
-    return R
+
+    def swing():
+        R_rest = body.R_socket_rest[idx]
+        d = azimuth_polar_to_vector(theta, phi)
+        return matmul3(swing_rotation(R_rest[:, :, 2], d), R_rest)
+
+    def table():  # every segment's, one evaluation: the swing default's are dropped
+        return orientation_matrix(theta, phi, standard_twist_coded(theta, phi, code % len(LIMBS)))
+
+    if np.all(code < 0):
+        return swing()
+    if np.all(code >= 0):
+        return table()
+    return jnp.where((code >= 0)[:, None, None], table(), swing())
 
 
 KINDS: tuple[str, ...] = ("swing",) + LIMBS  # socket-frame kinds, coded by position
+
+
+def table_codes(body: Body, idx: np.ndarray) -> np.ndarray:
+    """(k,) the limb table of each of segments `idx` as an index into LIMBS, -1 for the
+    swing default (static)."""
+    return np.asarray([KINDS.index(body.standard_kind[i]) - 1 for i in idx], int).reshape(-1)
 
 
 def socket_frame_of_kind(
     theta: Float[Array, ""], phi: Float[Array, ""], R_rest: Float[Array, "3 3"], kind: Array
 ) -> Float[Array, "3 3"]:
     """One segment's base frame in its socket (`socket_frames`) with its kind as a traced
-    code into `KINDS`, for steps of a walk that runs one code for every segment: every kind
-    is built and the segment's own is kept."""
+    code into `KINDS`, for steps of a walk that runs one code for every segment: the swing
+    default and the table (of the limb `kind` codes, any for the swing default) are both
+    built and the segment's own is kept."""
     d = azimuth_polar_to_vector(theta, phi)
-    frames = [matmul3(swing_rotation(R_rest[:, 2], d), R_rest)]
-    frames += [standard_frame(theta, phi, limb) for limb in LIMBS]
-    return jnp.stack(frames)[kind]
+    swing = matmul3(swing_rotation(R_rest[:, 2], d), R_rest)
+    limb = jnp.maximum(jnp.asarray(kind) - 1, 0)
+    table = orientation_matrix(theta, phi, standard_twist_coded(theta, phi, limb))
+    return jnp.where(kind == 0, swing, table)
 
 
 def twist_fraction(z: Float[Array, "*b"], length: Float[Array, "*b"]) -> Float[Array, "*b"]:
@@ -130,17 +148,45 @@ def socket_frames_from_swing(
 def _table_twists(body: Body, idx: np.ndarray, R: Array) -> Array:
     """(k,) the twist about Z that turns frames R (k, 3, 3) of segments `idx` into their
     limb tables' frames at the same direction; 0 for the swing default."""
-    kinds = [body.standard_kind[i] for i in idx]
-    # The table twists are gathered into one angle per segment and applied once: an
-    # in-place `R.at[k].set(f(R[k]))` was miscompiled by XLA on CPU when fused with a
-    # later scatter (frames off by 1e-4 rad under jit, exact eagerly).
-    twist = jnp.zeros(len(idx), R.dtype)
-    for limb in sorted(set(kinds) - {"swing"}):
-        k = np.flatnonzero([kind == limb for kind in kinds])
-        theta, phi, _ = vector_to_azimuth_polar(R[k, :, 2])
-        M = matmul3(jnp.swapaxes(R[k], -1, -2), standard_frame(theta, phi, limb))
-        twist = twist.at[k].set(jnp.arctan2(M[:, 1, 0], M[:, 0, 0]))
-    return twist
+    code = table_codes(body, idx)
+    if np.all(code < 0):
+        return jnp.zeros(R.shape[:1], R.dtype)
+    t, _ = _relative_table_twist(R, code)
+    return jnp.where(code >= 0, t, 0.0)
+
+
+def _relative_table_twist(R: Array, code: np.ndarray) -> tuple[Array, Callable[[Array], Array]]:
+    """For frames R (k, 3, 3) and limb codes (k,) into LIMBS (the swing default's any): the
+    twist t about Z with R Rz(t) the limb's table frame S at R's Z axis d, and t's rate as
+    a function of R's body rates omega (..., k, 3).
+
+    Every segment is evaluated at once. With F = Rz(theta) Ry(phi) at d's (theta, phi), and
+    R = F Rz(alpha), S = F Rz(s): t = s - alpha, read off as the angle from R's X to S's X,
+    cos(s) F e_x + sin(s) F e_y, in R's XY plane (a unit vector: finite at the poles, where
+    theta is 0). Its rate is S's spin about d less R's (`standard_spin`): R turning at body
+    rate omega moves d by R (omega x e_z), which is dphi along F e_x and sin(phi) dtheta
+    along F e_y.
+    Exactly at a pole (theta and phi with zero derivatives, as `vector_to_azimuth_polar`
+    gives) S does not spin.
+    """
+    d = R[..., 2]
+    theta, phi, _ = vector_to_azimuth_polar(d)
+    s, spin_meridian, spin_parallel = standard_spin(theta, phi, code % len(LIMBS))
+    ct, st, cp, sp = jnp.cos(theta), jnp.sin(theta), jnp.cos(phi), jnp.sin(phi)
+    x = R[..., 0]  # R's X, in F's frame (cos alpha, sin alpha, 0)
+    ca = cp * (ct * x[..., 0] + st * x[..., 1]) - sp * x[..., 2]
+    sa = ct * x[..., 1] - st * x[..., 0]
+    cs, ss = jnp.cos(s), jnp.sin(s)
+    t = jnp.arctan2(ss * ca - cs * sa, cs * ca + ss * sa)
+    at_pole = jnp.sum(d[..., :2] * d[..., :2], axis=-1) <= eps_for(d)  # as `safe_norm`
+
+    def rate(omega: Array) -> Array:
+        # R (omega x e_z) = omega_y R e_x - omega_x R e_y; R e_x is (ca, sa) in F's XY.
+        along = jnp.where(at_pole, 0.0, ca * omega[..., 1] + sa * omega[..., 0])
+        across = jnp.where(at_pole, 0.0, sa * omega[..., 1] - ca * omega[..., 0])
+        return spin_meridian * along + spin_parallel * across - omega[..., 2]
+
+    return t, rate
 
 
 def socket_rates_from_swing(
@@ -149,20 +195,18 @@ def socket_rates_from_swing(
     """Body rates vee(R^T dR) of `socket_frames_from_swing`'s frames R per unit of w_x and
     of w_y, in closed form: R_rest exp(w) turns at J_r(w) dw (the right Jacobian); a limb
     with a table then turns about its own Z by its table twist t(w), which rotates that rate
-    by Rz(t)^T and adds dt about Z (dt by forward mode through the table alone)."""
+    by Rz(t)^T and adds dt about Z (`_relative_table_twist`)."""
     idx = np.asarray(idx)
     w3 = jnp.concatenate([swing, jnp.zeros_like(swing[:, :1])], axis=-1)
     rates = jnp.moveaxis(right_jacobian(w3)[:, :, :2], -1, 0)  # (2, k, 3)
-    if all(body.standard_kind[i] == "swing" for i in idx):
+    code = table_codes(body, idx)
+    if np.all(code < 0):
         return rates
-    R_rest = body.R_socket_rest[idx]
-
-    def twists(w):
-        return _table_twists(body, idx, matmul3(R_rest, exp_swing(w)))
-
-    units = jnp.eye(2, dtype=swing.dtype)[:, None, :] * jnp.ones_like(swing)
-    t, dt = jax.vmap(lambda u: jax.jvp(twists, (swing,), (u,)))(units)
-    c, s = jnp.cos(t[0]), jnp.sin(t[0])
+    R = matmul3(body.R_socket_rest[idx], exp_swing(swing))
+    t, rate = _relative_table_twist(R, code)
+    table = code >= 0
+    t, dt = jnp.where(table, t, 0.0), jnp.where(table, rate(rates), 0.0)
+    c, s = jnp.cos(t), jnp.sin(t)
     x, y, z = rates[..., 0], rates[..., 1], rates[..., 2]
     return jnp.stack([c * x + s * y, c * y - s * x, z + dt], axis=-1)
 

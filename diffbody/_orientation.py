@@ -12,10 +12,12 @@ A segment's base frame in its socket is R = Rz(theta) Ry(phi) Rz(s(theta, phi) +
 (docs/design.md, section 1), where s is the standard twist of this module.
 """
 
+import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int
 
-from ._rotations import matmul3, rot_y, rot_z, safe_atan2, safe_norm
+from ._rotations import eps_for, matmul3, rot_y, rot_z, safe_atan2, safe_norm
 
 LIMBS: tuple[str, ...] = ("left_arm", "right_arm", "left_leg", "right_leg")
 
@@ -91,27 +93,67 @@ def orientation_matrix(
     return matmul3(matmul3(rot_z(theta), rot_y(phi)), rot_z(twist))
 
 
-def _left_arm_deg(theta: Array, phi: Array) -> Array:
-    """Seed 000's five-piece table for the left arm, in degrees, theta in [-90, 270)."""
-    back = theta >= 90.0
-    upper = phi <= 90.0
-    t1 = 180.0 - theta * (1.0 - phi / 90.0)
-    t2 = -180.0 * (1.0 - theta / 90.0) + (phi - 270.0) * (theta / 90.0)
-    t3 = (theta - 180.0) * (1.0 + (180.0 - phi) / 90.0)
-    t4 = 2.0 * (theta - 180.0) * phi / 90.0 - (180.0 + theta) * (1.0 - phi / 90.0)
-    # sgn(225 - theta): the seam; on the seam itself we take the theta < 225 side.
-    sgn = jnp.where(theta <= 225.0, 1.0, -1.0)
-    t5 = (180.0 - theta) * (1.0 - 3.0 * phi / 90.0) + sgn * 360.0 * phi / 90.0
-    front_t = jnp.where(upper, t1, t2)
-    back_t = jnp.where(upper, jnp.where(theta <= 180.0, t4, t5), t3)
-    return jnp.where(back, back_t, front_t)
+# The standard twist's pieces, each bilinear in degrees, s = c0 + c1 theta + c2 phi
+# + k theta phi / 90, for the left limbs: seed 000's table for the arm (theta in [-90, 270)),
+# the derivation of docs/design.md, section 4, for the leg (theta in [-180, 180)). `pole` is
+# the pole a piece reaches (+1 north, phi = 0; -1 south, phi = 180), where theta + s
+# (c1 = -1) or s - theta (c1 + 2 k = 1) is constant: one frame per pole (`standard_spin`).
+_PIECES = np.array(
+    [
+        # c0, c1, c2, k, pole
+        [180, -1, 0, 1, 1],  # 0 arm, front, upper: 180 - theta (1 - phi / 90)
+        [-180, -1, 0, 1, -1],  # 1 arm, front, lower: -180 (1 - theta / 90) + (phi - 270) theta / 90
+        [-540, 3, 2, -1, -1],  # 2 arm, back, lower: (theta - 180) (1 + (180 - phi) / 90)
+        [-180, -1, -2, 3, 1],  # 3 arm, back, upper, theta <= 180:
+        #                         2 (theta - 180) phi / 90 - (180 + theta) (1 - phi / 90)
+        [180, -1, -2, 3, 1],  # 4 arm, back, upper, theta in (180, 225]:
+        #                        (180 - theta) (1 - 3 phi / 90) + sgn(225 - theta) 360 phi / 90
+        [180, -1, -10, 3, 1],  # 5 arm, back, upper, theta > 225 (past the seam): the same
+        [180, -1, 0, 2, 1],  # 6 leg, upper (phi < 90): 180 - theta + 2 theta phi / 90
+        [-180, 1, 0, 0, -1],  # 7 leg, lower (phi >= 90): theta - 180
+    ],
+    dtype=float,
+)
+_ARM = np.asarray([limb.endswith("arm") for limb in LIMBS])
+_SIGN = np.asarray([-1.0 if limb.startswith("right") else 1.0 for limb in LIMBS])
 
 
-def _left_leg_deg(theta: Array, phi: Array) -> Array:
-    """The left leg's standard twist in degrees, theta in [-180, 180); see standard_twist."""
-    lower = theta - 180.0
-    upper = 180.0 - theta + 2.0 * theta * phi / 90.0
-    return jnp.where(phi >= 90.0, lower, upper)
+def _select(cond, a, b) -> Array:
+    """jnp.where(cond, a(), b()), building only the branch that a static (NumPy) condition
+    takes when it takes one."""
+    if isinstance(cond, np.ndarray | np.bool_) and (np.all(cond) or not np.any(cond)):
+        return a() if np.all(cond) else b()
+    return jnp.where(cond, a(), b())
+
+
+def _pieces(theta, phi, code) -> tuple[Array, Array, ArrayLike, tuple[Array, ...]]:
+    """For directions (theta, phi) (rad) of limbs coded `code` (indices into LIMBS, static
+    NumPy or traced): the left limb's (theta, phi) in degrees (theta mirrored for a right
+    limb and wrapped into its table's range, phi clipped to [0, 180]), the mirror sign, and
+    the coefficients (c0, c1, c2, k, pole) of each direction's piece of `_PIECES`."""
+    theta_deg, phi_deg = jnp.rad2deg(jnp.asarray(theta)), jnp.rad2deg(jnp.asarray(phi))
+    dtype = jnp.result_type(theta_deg, phi_deg)
+    xp = jnp if isinstance(code, jax.Array) else np
+    arm, sign = xp.asarray(_ARM)[code], xp.asarray(_SIGN, dtype)[code]
+    offset = xp.where(arm, 90.0, 180.0).astype(dtype)
+    theta_deg = jnp.mod(sign * theta_deg + offset, 360.0) - offset
+    phi_deg = jnp.clip(phi_deg, 0.0, 180.0)
+
+    def arm_row():
+        # The seam, sgn(225 - theta): on the seam itself, the theta < 225 side.
+        upper = jnp.where(theta_deg <= 180.0, 3, jnp.where(theta_deg <= 225.0, 4, 5))
+        back = jnp.where(phi_deg <= 90.0, upper, 2)
+        return jnp.where(theta_deg >= 90.0, back, jnp.where(phi_deg <= 90.0, 0, 1))
+
+    row = _select(arm, arm_row, lambda: jnp.where(phi_deg >= 90.0, 7, 6))
+    coefficients = jnp.moveaxis(jnp.asarray(_PIECES, dtype)[row], -1, 0)
+    return theta_deg, phi_deg, sign, tuple(coefficients)
+
+
+def _twist(theta_deg, phi_deg, sign, coefficients) -> Array:
+    """The standard twist (rad) from `_pieces`."""
+    c0, c1, c2, k, _ = coefficients
+    return sign * jnp.deg2rad(c0 + theta_deg * (c1 + k * phi_deg / 90.0) + c2 * phi_deg)
 
 
 def standard_twist(
@@ -147,15 +189,43 @@ def standard_twist(
     """
     if limb not in LIMBS:
         raise ValueError(f"standard_twist: unknown limb {limb!r}; expected one of {LIMBS}")
-    theta = jnp.asarray(theta)
-    phi_deg = jnp.clip(jnp.rad2deg(jnp.asarray(phi)), 0.0, 180.0)
-    sign = -1.0 if limb.startswith("right") else 1.0
-    theta_deg = sign * jnp.rad2deg(theta)
-    if limb.endswith("arm"):
-        t = _left_arm_deg(jnp.mod(theta_deg + 90.0, 360.0) - 90.0, phi_deg)
-    else:
-        t = _left_leg_deg(jnp.mod(theta_deg + 180.0, 360.0) - 180.0, phi_deg)
-    return sign * jnp.deg2rad(t)
+    return standard_twist_coded(theta, phi, LIMBS.index(limb))
+
+
+def standard_twist_coded(
+    theta: Float[ArrayLike, "*b"], phi: Float[ArrayLike, "*b"], code: Int[ArrayLike, "*#b"]
+) -> Float[Array, "*b"]:
+    """`standard_twist` of limbs given as codes, indices into LIMBS (a NumPy array or int,
+    or traced), one per direction: one evaluation for segments of every kind."""
+    return _twist(*_pieces(theta, phi, code))
+
+
+def standard_spin(
+    theta: Float[ArrayLike, "*b"], phi: Float[ArrayLike, "*b"], code: Int[ArrayLike, "*#b"]
+) -> tuple[Float[Array, "*b"], Float[Array, "*b"], Float[Array, "*b"]]:
+    """The standard twist s of limbs coded `code` (`standard_twist_coded`) and how fast the
+    standard frame S = Rz(theta) Ry(phi) Rz(s) turns about its own Z as its Z axis moves.
+
+    Returns (s, spin_meridian, spin_parallel): S's body rate about its Z is
+    spin_meridian dphi + spin_parallel sin(phi) dtheta, for the direction moving by dphi
+    along its meridian and by sin(phi) dtheta along its parallel. From the Euler angles
+    that rate is cos(phi) dtheta + ds, so spin_meridian = ds/dphi and
+    spin_parallel = (cos(phi) + ds/dtheta) / sin(phi). On each bilinear piece
+    ds/dtheta = c1 + B phi with B = 2 k / pi, and one frame per pole makes c1 = -1 on the
+    pieces that reach the north pole and c1 + B pi = 1 on those that reach the south one;
+    the quotient is then B x / sin(x) - tan(x / 2) (north, x = phi) or its negative (south,
+    x = pi - phi): finite, and accurate up to the poles (docs/design.md, section 4). At a
+    pole itself it is the limit along the piece's meridians.
+    """
+    theta_deg, phi_deg, sign, coefficients = _pieces(theta, phi, code)
+    _, _, c2, k, pole = coefficients
+    x = jnp.deg2rad(jnp.where(pole > 0, phi_deg, 180.0 - phi_deg))  # in [0, pi / 2]
+    small = x * x < jnp.sqrt(eps_for(x))
+    safe = jnp.where(small, 1.0, x)
+    x_over_sin = jnp.where(small, 1.0 + x * x / 6.0, safe / jnp.sin(safe))
+    spin_parallel = pole * (2.0 / jnp.pi * k * x_over_sin - jnp.tan(x / 2.0))
+    spin_meridian = sign * (c2 + k * theta_deg / 90.0)
+    return _twist(theta_deg, phi_deg, sign, coefficients), spin_meridian, spin_parallel
 
 
 def standard_frame(

@@ -11,8 +11,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from bodies import random_pose
+from hypothesis import given
+from hypothesis import strategies as st
 
 import diffbody as db
+from diffbody._kinematics import socket_frames_from_swing, socket_rates_from_swing
 
 ANSUR_STATURE = {"male50": 1.755, "female50": 1.626}  # m, ANSUR II medians
 
@@ -344,3 +347,86 @@ def test_socket_frames_from_swing_agree_under_jit_with_a_later_scatter():
     assert out["jit_off"] < 1e-14  # the in-place form: 1.2e-4 (jax 0.10.2)
     # and the table frame is the standard frame at that direction (socket_frames)
     assert out["table_off"] < 1e-12
+
+
+# --- the limbs' tables in frames built from swing vectors --------------------------------
+
+
+@eqx.filter_jit
+def _rates_and_autodiff(body, w):
+    """socket_rates_from_swing of every segment, and autodiff's body rates vee(R^T dR) of
+    socket_frames_from_swing per unit of w_x and w_y (2, n_seg, 3)."""
+    idx = np.arange(body.n_segments)
+    R = socket_frames_from_swing(body, w)
+    J = jax.jacfwd(lambda w: socket_frames_from_swing(body, w))(w)
+    dR = J[idx, :, :, idx, :]  # (n_seg, 3, 3, 2): each frame moves by its own w only
+    A = jnp.einsum("kba,kbcm->mkac", R, dR)
+    vee = jnp.stack([A[..., 2, 1], A[..., 0, 2], A[..., 1, 0]], axis=-1)
+    return socket_rates_from_swing(body, w, idx), vee
+
+
+def _table_segments(body):
+    return np.flatnonzero([kind != "swing" for kind in body.standard_kind])
+
+
+def test_socket_rates_at_rest_where_the_limbs_hang_at_their_poles(male50):
+    """At w = 0 every limb with a table hangs exactly at its socket's south pole, where its
+    table frame does not depend on theta: the closed-form rates are autodiff's there, and
+    their own derivatives are finite, as they are at the north pole (|w| = pi)."""
+    w = jnp.zeros((male50.n_segments, 2))
+    table = _table_segments(male50)
+    assert table.size == 4
+    d = socket_frames_from_swing(male50, w)[table, :, 2]
+    np.testing.assert_array_equal(np.asarray(d), [[0.0, 0.0, -1.0]] * 4)
+    rates, vee = _rates_and_autodiff(male50, w)
+    np.testing.assert_allclose(rates, vee, rtol=0, atol=1e-14)
+    north = w.at[:, 1].set(np.pi)
+    for w0 in (w, north):
+        for derivatives in _derivatives(male50, w0):
+            assert np.all(np.isfinite(derivatives))
+
+
+@eqx.filter_jit
+def _derivatives(body, w):
+    """Forward- and reverse-mode derivatives of socket_rates_from_swing, and the gradient of
+    socket_frames_from_swing, at swing vectors w (n_seg, 2)."""
+    idx = np.arange(body.n_segments)
+
+    def rates(w):
+        return socket_rates_from_swing(body, w, idx)
+
+    def frames(w):
+        return jnp.sum(socket_frames_from_swing(body, w) * jnp.arange(9.0).reshape(3, 3))
+
+    return jax.jacfwd(rates)(w), jax.jacrev(rates)(w), jax.grad(frames)(w)
+
+
+# Radii of the swings: at the pole (0) and 1e-4 from it, or at least 1e-3 from either pole
+# (|w| = pi is the north pole for a hanging limb), where autodiff is accurate to 1e-13.
+radii = st.one_of(
+    st.sampled_from([0.0, 1e-4, np.pi / 2, np.pi - 1e-4, np.pi + 1e-4]),
+    st.floats(1e-3, 3.5).filter(lambda r: abs(r - np.pi) > 1e-3),
+)
+
+
+@given(angle=st.floats(-np.pi, np.pi), radius=radii)
+def test_socket_rates_are_autodiffs_body_rates(male50, angle, radius):
+    """The closed form (the tables' spin, no derivative pass) against autodiff of the frames
+    for every segment, swung in a different direction each, near the poles included (1e-4
+    from one, autodiff is good to eps / 1e-4)."""
+    n = male50.n_segments
+    a = angle + np.arange(n)
+    w = jnp.asarray(radius * np.stack([np.cos(a), np.sin(a)], axis=-1))
+    rates, vee = _rates_and_autodiff(male50, w)
+    np.testing.assert_allclose(rates, vee, rtol=0, atol=1e-10)
+
+
+def test_socket_rates_converge_toward_the_pole(male50):
+    """Near a pole autodiff of the frames divides by the distance to it (errors of eps / rho:
+    3e-3 at rho = 1e-13); the closed form does not: along a ray the limbs' rates converge,
+    to their table's limit along that meridian."""
+    table = _table_segments(male50)
+    u = jnp.asarray(np.stack([np.cos(table), np.sin(table)], axis=-1))
+    near = [socket_rates_from_swing(male50, r * u, table) for r in (1e-8, 1e-11, 1e-14)]
+    np.testing.assert_allclose(near[1], near[0], rtol=0, atol=1e-7)
+    np.testing.assert_allclose(near[2], near[1], rtol=0, atol=1e-10)

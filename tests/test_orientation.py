@@ -1,5 +1,6 @@
 """Spherical coordinates and the standard orientation (seeds 000 and 001)."""
 
+import helpers as H
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -8,6 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import diffbody as db
+from diffbody._orientation import _PIECES, _pieces, standard_spin, standard_twist_coded
 
 DEG = np.pi / 180
 LIMBS = ("left_arm", "right_arm", "left_leg", "right_leg")
@@ -183,3 +185,90 @@ def test_standard_twist_gradients_finite_at_poles(limb):
             jnp.array([0.4, phi])
         )
         assert np.all(np.isfinite(g))
+
+
+# --- the table over segments of every kind at once (standard_twist_coded) --------------
+
+# Seams, the pieces' borders, the wrap of each table's range, the poles and next to them.
+SPECIAL_THETA = np.deg2rad([-270, -225, -180, -135, -90, -45, 0, 45, 90, 135, 180, 225, 270])
+SPECIAL_PHI = [0.0, 1e-9, 30 * DEG, np.pi / 2, 150 * DEG, np.pi - 1e-9, np.pi]
+directions = st.tuples(
+    st.one_of(st.sampled_from(list(SPECIAL_THETA)), st.floats(-7.0, 7.0)),
+    st.one_of(st.sampled_from(SPECIAL_PHI), polar),
+    st.integers(0, len(LIMBS) - 1),
+)
+
+
+@given(st.lists(directions, min_size=16, max_size=16))
+def test_coded_twist_is_each_limbs_own_table(rows):
+    """One evaluation over limbs of every kind (a static code per direction, or a traced
+    one) gives each limb's own table exactly (unwrapped), and the frame of the seed's
+    table typed again (tests/helpers.py) off the seams."""
+    theta, phi, code = (np.asarray(c) for c in zip(*rows))
+    coded = np.asarray(standard_twist_coded(theta, phi, code))
+    traced = np.asarray(_coded_twist(theta, phi, jnp.asarray(code)))
+    own = np.choose(code, [np.asarray(db.standard_twist(theta, phi, limb)) for limb in LIMBS])
+    np.testing.assert_allclose(coded, own, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(traced, own, rtol=0, atol=1e-13)
+    frames = np.asarray(db.orientation_matrix(theta, phi, coded))
+    for t, p, c, got in zip(theta, phi, code, frames):
+        if not _near_seam(LIMBS[c], t, p, 1e-6):
+            reference = H.base_in_socket(LIMBS[c], np.zeros(3), t, p)
+            np.testing.assert_allclose(got, reference, atol=1e-9)
+
+
+_coded_twist = jax.jit(standard_twist_coded)
+
+
+def test_pieces_meet_at_one_frame_per_pole():
+    # standard_spin's closed form rests on it: theta + s constant at the north pole
+    # (c1 = -1), s - theta at the south one (c1 + 2 k = 1).
+    c0, c1, c2, k, pole = _PIECES.T
+    assert set(pole) == {1.0, -1.0}
+    np.testing.assert_array_equal(c1[pole > 0], -1.0)
+    np.testing.assert_array_equal((c1 + 2 * k)[pole < 0], 1.0)
+
+
+@jax.jit
+def _spin_and_autodiff(theta, phi, code):
+    """standard_spin's two rates about Z and autodiff's, (S^T dS)_{10} per unit of theta
+    and of phi."""
+
+    def frame(t, p):
+        return db.orientation_matrix(t, p, standard_twist_coded(t, p, code))
+
+    S = frame(theta, phi)
+    _, spin_meridian, spin_parallel = standard_spin(theta, phi, code)
+    about_z = []
+    for tangent in ((1.0, 0.0), (0.0, 1.0)):
+        _, dS = jax.jvp(frame, (theta, phi), tuple(jnp.full_like(theta, x) for x in tangent))
+        about_z.append(jnp.sum(S[:, :, 1] * dS[:, :, 0], axis=-1))
+    return jnp.stack([spin_parallel * jnp.sin(phi), spin_meridian]), jnp.stack(about_z)
+
+
+@given(st.lists(directions, min_size=16, max_size=16))
+def test_standard_spin_is_the_standard_frames_turn_about_its_axis(rows):
+    """S = Rz(theta) Ry(phi) Rz(s) turns about its own Z at spin_meridian dphi +
+    spin_parallel sin(phi) dtheta: autodiff of the frame, off the exact poles (where
+    autodiff's clip of phi takes half a derivative)."""
+    theta, phi, code = (np.asarray(c) for c in zip(*rows))
+    phi = np.clip(phi, 1e-9, np.pi - 1e-9)
+    s, _, _ = standard_spin(theta, phi, code)
+    np.testing.assert_allclose(s, standard_twist_coded(theta, phi, code), rtol=0, atol=1e-15)
+    spin, about_z = _spin_and_autodiff(theta, phi, jnp.asarray(code))
+    np.testing.assert_allclose(spin, about_z, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("code", range(len(LIMBS)))
+def test_standard_spin_is_finite_at_the_poles(code):
+    """At a pole the spin about the axis is the limit along the piece's meridian,
+    (2 k / pi) per unit of sin(phi) dtheta, and its derivatives are finite."""
+    theta = jnp.asarray(np.deg2rad([-135.0, -45.0, 45.0, 135.0, 200.0, 250.0]))
+    for pole in (0.0, np.pi):
+        phi = jnp.full(theta.shape, pole)
+        _, _, spin_parallel = standard_spin(theta, phi, code)
+        _, _, _, (_, _, _, k, side) = _pieces(theta, phi, code)
+        np.testing.assert_allclose(spin_parallel, side * 2 / np.pi * k, atol=1e-15)
+        for argnums in (0, 1):
+            jac = jax.jacfwd(lambda t, p: jnp.stack(standard_spin(t, p, code)), argnums)
+            assert np.all(np.isfinite(jac(theta, phi)))
