@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._body import PHI, TAU, THETA, Body, Pose
+from ._body import PHI, TAU, THETA, Body, Pose, without_names
 from ._chain import Chain, make_chain, walk
 from ._orientation import (
     LIMBS,
@@ -24,6 +24,7 @@ from ._orientation import (
     standard_twist_coded,
     vector_to_azimuth_polar,
 )
+from ._programs import compiled
 from ._rotations import (
     eps_for,
     exp_rotvec,
@@ -237,9 +238,9 @@ def feature_points(
 def forward(body: Body, pose: Pose) -> Kinematics:
     """Forward kinematics of one pose (seed 000).
 
-    Eagerly (no argument traced) the walk runs compiled (`eqx.filter_jit`): op by op its
-    per-level scan would be traced again at every call. Inside a transformation it is traced
-    inline, as any pure function.
+    Eagerly (no argument traced) the walk runs compiled (`_programs.compiled`, one program
+    per body structure, names aside): op by op its per-level scan would be traced again at
+    every call. Inside a transformation it is traced inline, as any pure function.
 
     One walk of the tree (`diffbody._chain.walk`): a segment's socket is its parent's
     twisted frame turned by the fixed socket rotation, its base frame is the socket times
@@ -260,7 +261,7 @@ def forward(body: Body, pose: Pose) -> Kinematics:
     """
     if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((body, pose))):
         return _forward(body, pose)
-    return _forward_compiled(body, pose)
+    return _forward_compiled(without_names(body), pose)
 
 
 def _forward(body: Body, pose: Pose) -> Kinematics:
@@ -268,7 +269,8 @@ def _forward(body: Body, pose: Pose) -> Kinematics:
     return forward_frames(body, R_socket_base, tau, jnp.asarray(pose.position))
 
 
-_forward_compiled = eqx.filter_jit(_forward)
+# One program per body structure (names aside), kept as `_programs.compiled` keeps it.
+_forward_compiled = compiled(_forward)
 
 
 def pose_frames(body: Body, pose: Pose) -> tuple[Float[Array, "n_seg 3 3"], Float[Array, " n_seg"]]:

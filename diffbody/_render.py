@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._body import Body, Pose, without_names
+from ._body import Body, Pose
 from ._kinematics import forward
 
 VIEWS = {  # (azimuth, elevation) of the camera, degrees; azimuth from +X toward +Y
@@ -132,10 +132,9 @@ def draw(
     """Draw the shaded sphere body into a matplotlib Axes: one image (`shade`) at about 1.5 times
     the axes' resolution, placed in screen metres, so outlines and points drawn after it
     (`draw_cloud`) land on the body."""
-    # The names are static fields but no input of the kinematics: without them, bodies of
-    # one structure (scaled ones, say) share the compiled forward, and so does a reach's
-    # set-up (the floor and the planted feet under the rest pose).
-    fk = forward(without_names(body), pose)
+    # `forward` compiles one program per body structure (names aside): scaled bodies, a
+    # reach's set-up (the floor, the planted feet) and this picture share it.
+    fk = forward(body, pose)
     centers = np.asarray(fk.sphere_centers, dtype=float)
     radii = np.asarray(fk.sphere_radii, dtype=float)
     to_camera, right, up, label = camera(view)

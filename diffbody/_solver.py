@@ -38,15 +38,26 @@ def tolerance(dtype, float32: float, float64: float) -> float:
 
 class EarlyStop(optx.LevenbergMarquardt):
     """Levenberg-Marquardt that also stops as soon as the first rows of the residuals are
-    each within the bounds that the last element of `args` holds (an array of those rows'
-    bounds)."""
+    each within their bounds, and after a number of steps given as data: the last element
+    of `args` is `StopAt(bounds, max_steps)`. A stop at the step cap reports
+    `nonlinear_max_steps_reached`, as optimistix's own `max_steps` does, so one compiled
+    solve (its static `max_steps` the largest cap) serves every cap below it."""
 
     def terminate(self, fn, y, args, options, state, tags):
         done, result = super().terminate(fn, y, args, options, state, tags)
-        bounds = args[-1]
-        rows = state.f_info.residual[: bounds.shape[0]]
-        reached = ~state.first_step & jnp.all(jnp.abs(rows) <= bounds)
-        return done | reached, result
+        stop = args[-1]
+        rows = state.f_info.residual[: stop.bounds.shape[0]]
+        reached = ~state.first_step & jnp.all(jnp.abs(rows) <= stop.bounds)
+        capped = ~(done | reached) & (state.num_steps >= stop.max_steps)
+        result = optx.RESULTS.where(capped, optx.RESULTS.nonlinear_max_steps_reached, result)
+        return done | reached | capped, result
+
+
+class StopAt(NamedTuple):
+    """What `EarlyStop` reads from the last element of its args."""
+
+    bounds: Array  # (k,) the first k residual rows' bounds
+    max_steps: Array  # () int, the most steps of this solve
 
 
 def least_squares_solver(

@@ -22,6 +22,7 @@ from jaxtyping import Array, Bool, Float, Int
 from .._batches import map_chunks
 from .._body import Body, Pose, without_names
 from .._joint_angles import angle_names, joint_angles
+from .._programs import compiled
 from .._solver import FitStatus, Solved, solve
 from ._marker_layout import mocap_layout, rigid_start
 from ._marker_points import model_markers
@@ -141,7 +142,7 @@ def _fit_frames(problem, lay, offsets, scale, starts, measured, sqrt_w, x_first,
     return poses, p, errors, status, steps, last
 
 
-_fit_frames_jit = eqx.filter_jit(_fit_frames)
+_fit_frames_jit = compiled(_fit_frames)
 
 
 class MotionFit(eqx.Module):

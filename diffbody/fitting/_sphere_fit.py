@@ -24,6 +24,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from .._batches import chunk_rows, map_chunks
 from .._body import Body, Pose, without_names
 from .._chunk_store import ChunkStore, float_name, input_hash
+from .._programs import compiled
 from .._solver import FitStatus, least_squares_solver, solve, tolerance
 from .._spine import spine_angles
 from .._streaming import tree_hash
@@ -231,8 +232,8 @@ def fit_many(template, lay, init, clouds, align, tables):
 
 
 # One compiled fit per (body structure, layout, cloud size, start); the batch one per chunk.
-_fit_jit = eqx.filter_jit(fit_one)
-_fit_many_jit = eqx.filter_jit(fit_many)
+_fit_jit = compiled(fit_one)
+_fit_many_jit = compiled(fit_many)
 
 
 # --- the public functions ------------------------------------------------------------------

@@ -19,6 +19,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._body import Body, Pose, without_names
+from .._programs import compiled
 from .._solver import FitStatus, solve
 from ..anthropometry._prior import PopulationPrior
 from ..anthropometry._scale_to import LENGTHS, linear_model_jit
@@ -197,7 +198,7 @@ def _fit_static(template: Body, lay: MocapLayout, rest: Pose, static: _Static):
     return pose, log_axial, log_radial, offsets, errors, status, steps
 
 
-_fit_static_jit = eqx.filter_jit(_fit_static)
+_fit_static_jit = compiled(_fit_static)
 
 
 def _fit_names(fit) -> tuple[str, ...]:

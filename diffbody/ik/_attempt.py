@@ -21,7 +21,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
 from .._body import Body, Pose
-from .._solver import FitStatus, least_squares_solver, solve, tolerance
+from .._solver import FitStatus, StopAt, least_squares_solver, solve, tolerance
 from ._constraints import WEIGHT
 from ._limb_start import limb_start
 from ._problem import Problem, make_problem
@@ -57,7 +57,7 @@ def reach_solver(dtype) -> optx.AbstractLeastSquaresSolver:
     return least_squares_solver(tolerance(dtype, 1e-6, 1e-8), early_stop=True)
 
 
-def _residuals(x: Array, args: tuple[Problem, TargetSet, Array]) -> Array:
+def _residuals(x: Array, args: tuple[Problem, TargetSet, StopAt]) -> Array:
     problem, targets, _ = args
     return problem.residuals(x, targets)
 
@@ -103,15 +103,15 @@ def implicit(problem: Problem, targets: TargetSet, x: Array) -> Array:
 def start_vector(
     body: Body,
     layout: Layout,
-    init: Pose,
     targets: TargetSet,
     problem: Problem,
     start: Int[Array, ""],
     closed_form: bool,
 ) -> Float[Array, " n_free"]:
     """The free vector of start `start` (traced): 0 is the closed-form limb start when
-    `closed_form` (the first phase), else `init`; then the Halton points of `_starts`."""
-    first = limb_start(body, layout, init, targets, problem) if closed_form else problem.x0
+    `closed_form` (the first phase), else the problem's start; then the Halton points of
+    `_starts`."""
+    first = limb_start(body, layout, targets, problem) if closed_form else problem.x0
     n_trunk = (3 if layout.spine else 0) + (6 if layout.root else 0)
     return nth_start(first, problem.x0, start, n_trunk)
 
@@ -129,26 +129,32 @@ def solve_free(
     tol_angle: Float[Array, ""],
     closed_form: bool = False,
     solver: optx.AbstractLeastSquaresSolver | None = None,
+    cap: Int[Array, ""] | None = None,
+    problem: Problem | None = None,
 ) -> tuple[Float[Array, " n_free"], Int[Array, ""], Bool[Array, ""]]:
     """One round of one phase's solve: from start `start` when `fresh`, else from x (the
-    last round's answer), at most `max_steps` steps. Returns the free vector, the steps and
-    whether the solve has ended (stopped early, converged, or left the finite numbers: then
-    it falls back to where the round began). Non-finite targets take no part. Never
-    differentiated (see `assess`). `solver`: by default `reach_solver` (any optimistix
-    least-squares solver runs on the same problem; only `EarlyStop` reads the last element
-    of the args, the early-stop bounds)."""
-    body, init, targets, x, tol_position, tol_angle = no_gradient(
-        (body, init, targets, x, tol_position, tol_angle)
+    last round's answer), at most `max_steps` steps (static: the compiled loop's bound), or
+    `cap` steps (data, <= max_steps: every cap shares one program). Returns the free
+    vector, the steps and whether the solve has ended (stopped early, converged, or left
+    the finite numbers: then it falls back to where the round began). Non-finite targets
+    take no part. Never differentiated (see `assess`). `solver`: by default `reach_solver`
+    (any optimistix least-squares solver runs on the same problem; only `EarlyStop` reads
+    the last element of the args, `StopAt`). `problem`: `make_problem`'s, when already
+    built (its derivatives are stopped here)."""
+    body, init, targets, x, tol_position, tol_angle, problem = no_gradient(
+        (body, init, targets, x, tol_position, tol_angle, problem)
     )
     safe, _, _ = mask_invalid(targets)
-    problem = make_problem(body, layout, init)
-    x0 = start_vector(body, layout, init, safe, problem, start, closed_form)
+    problem = make_problem(body, layout, init) if problem is None else problem
+    x0 = start_vector(body, layout, safe, problem, start, closed_form)
     x0 = jnp.where(fresh, x0, x)
     if not layout.n_free:
         return x0, jnp.asarray(0), jnp.asarray(True)
     n_rows = jax.eval_shape(problem.residuals, x0, safe).shape[0]
     n_constraint_rows = n_rows - layout.n_free - 3 * (len(layout.points) + len(layout.axis_slot))
-    args = (problem, safe, _close_enough(safe, tol_position, tol_angle, n_constraint_rows))
+    bounds = _close_enough(safe, tol_position, tol_angle, n_constraint_rows)
+    cap = jnp.asarray(max_steps if cap is None else cap)
+    args = (problem, safe, StopAt(bounds, cap))
     solver = reach_solver(x0.dtype) if solver is None else solver
     out = solve(_residuals, solver, x0, args, max_steps)
     return out.value, jnp.asarray(out.steps), out.status != FitStatus.NOT_CONVERGED
@@ -164,11 +170,13 @@ def assess(
     tol_position: Float[Array, ""],
     tol_angle: Float[Array, ""],
     differentiable: bool = False,
+    problem: Problem | None = None,
 ) -> Attempt:
     """The pose, errors and verdict of a solved free vector; with `differentiable`, the
-    answer carries the implicit function theorem's derivatives (`implicit`)."""
+    answer carries the implicit function theorem's derivatives (`implicit`). `problem`:
+    `make_problem`'s, when already built."""
     safe, ok_p, ok_a = mask_invalid(targets)
-    problem = make_problem(body, layout, init)
+    problem = make_problem(body, layout, init) if problem is None else problem
     if differentiable and layout.n_free:
         x = implicit(problem, safe, x)
     err_p, err_a, violation = problem.errors(x, safe)
@@ -189,18 +197,31 @@ def attempt_round(
     x: Float[Array, " n_free"],
     start: Int[Array, ""],
     fresh: Bool[Array, ""],
-    max_steps: int,
+    cap: Int[Array, ""],
     tol_position: Float[Array, ""],
     tol_angle: Float[Array, ""],
     closed_form: bool,
 ) -> tuple[Float[Array, " n_free"], Bool[Array, ""], Attempt]:
-    """One round (`solve_free`), assessed (no derivatives): the free vector to go on from,
-    whether the solve has ended, and the attempt (its steps: this round's)."""
+    """One round (`solve_free`) of at most `cap` <= `ROUND_STEPS` steps (data), assessed
+    (no derivatives): the free vector to go on from, whether the solve has ended, and the
+    attempt (its steps: this round's). The problem is built once and shared."""
     tols = (tol_position, tol_angle)
+    problem = make_problem(no_gradient(body), layout, no_gradient(init))
     x, steps, done = solve_free(
-        body, layout, init, targets, x, start, fresh, max_steps, *tols, closed_form
+        body,
+        layout,
+        init,
+        targets,
+        x,
+        start,
+        fresh,
+        ROUND_STEPS,
+        *tols,
+        closed_form,
+        cap=cap,
+        problem=problem,
     )
-    return x, done, assess(body, layout, init, targets, x, steps, *tols)
+    return x, done, assess(body, layout, init, targets, x, steps, *tols, problem=problem)
 
 
 # Standing, a phase may take this many times `max_steps`: the planted feet close a loop
@@ -220,7 +241,7 @@ def round_caps(max_steps: int) -> list[int]:
     return [ROUND_STEPS] * full + ([rest] if rest else [])
 
 
-def better(a: Attempt, b: Attempt) -> Array | np.ndarray:
+def better(a: Attempt, b: Attempt) -> Array | np.ndarray | np.bool_:
     """Whether attempt a should replace b: it reaches where b does not, or comes closer
     (elementwise for attempts of many rows, jax or numpy)."""
     return (a.ok & ~b.ok) | ((a.ok == b.ok) & (a.cost < b.cost))

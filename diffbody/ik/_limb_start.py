@@ -34,11 +34,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._body import Body, Pose
+from .._body import Body
 from .._kinematics import feature_points, socket_frames_from_swing
-from .._limits import swing_vector
 from .._rotations import exp_rotvec, safe_norm, swing_rotation
-from ._problem import Problem, start_links
+from ._problem import Problem
 from ._targets import TargetSet
 from ._unknowns import Layout, into_cone, path_to_top, point_segment, squash, unsquash
 
@@ -93,20 +92,19 @@ def limbs(body: Body, layout: Layout, axis_segments: tuple[int, ...]) -> tuple[L
 
 
 def limb_start(
-    body: Body, layout: Layout, init: Pose, targets: TargetSet, problem: Problem
+    body: Body, layout: Layout, targets: TargetSet, problem: Problem
 ) -> Float[Array, " n_free"]:
-    """The free vector of the closed-form start: `problem.x0` (the start `init`) with every
+    """The free vector of the closed-form start: `problem.x0` (the problem's start) with every
     limb of `limbs` posed toward its point target (one whose weight is zero keeps the start).
     Not differentiated (a start)."""
     found = limbs(body, layout, targets.axis_segment)
     x = problem.x0
     if not found:
         return x
-    links, _, tau = start_links(body, init)
+    links, tau = problem.start, problem.tau_start
     for limb in found:
-        w, twist, flexion = _pose_limb(
-            body, links, tau, init.angles, limb, targets.point_xyz[limb.row]
-        )
+        w_hinge = problem.swing0[layout.chain.position(limb.hinge)]
+        w, twist, flexion = _pose_limb(body, links, tau, w_hinge, limb, targets.point_xyz[limb.row])
         entries = list(limb.x_upper[:2]) + [limb.x_hinge]
         values = [w[0], w[1], flexion]
         if limb.x_upper[2] >= 0:
@@ -119,9 +117,10 @@ def limb_start(
     return x
 
 
-def _pose_limb(body: Body, links, tau: Array, init_angles: Array, limb: Limb, target: Array):
+def _pose_limb(body: Body, links, tau: Array, w_hinge: Array, limb: Limb, target: Array):
     """The upper segment's swing vector (2,) and twist, and the hinge's flexion (its
-    swing_y), that put the effector at `target` (as near as the limits allow)."""
+    swing_y), that put the effector at `target` (as near as the limits allow); `w_hinge`:
+    the hinge's swing vector in the start."""
     upper, hinge = limb.upper, limb.hinge
     S = links.p_proximal[upper]
     E = links.p_proximal[hinge]
@@ -138,7 +137,6 @@ def _pose_limb(body: Body, links, tau: Array, init_angles: Array, limb: Limb, ta
     rho = jnp.sqrt(A * A + B * B)
     phi = jnp.arctan2(B, A)
     alpha = jnp.arccos(jnp.clip(K / jnp.where(rho > 0, rho, 1.0), -1.0, 1.0))
-    w_hinge = swing_vector(body, init_angles)[hinge]
     lo, hi = _representable(body.swing_lo[hinge, 1], body.swing_hi[hinge, 1])
     roots = jnp.stack([phi + alpha, phi - alpha])
     deltas = jnp.arctan2(jnp.sin(roots), jnp.cos(roots))

@@ -24,6 +24,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike
 
 from .._body import Body, Pose
+from .._kinematics import Links, forward
+from .._programs import compiled
 from .._spine import spine_angles
 from ._attempt import (
     Attempt,
@@ -35,7 +37,7 @@ from ._attempt import (
     round_caps,
     solve_free,
 )
-from ._problem import reach_bound, start_links
+from ._problem import reach_bound
 from ._targets import TargetSet
 from ._unknowns import Layout, make_layout, path_to_top, point_segment
 
@@ -120,9 +122,24 @@ def _phase_layouts(body, phase_targets, spine, free_root, segments, stand) -> li
     return [limbs, full]
 
 
-def host_links(body: Body, init: Pose):
-    """The start's links of every segment (global order) as NumPy arrays."""
-    return jax.tree.map(np.asarray, _start_links_jit(body, init)[0])
+def host_links(body: Body, init: Pose) -> Links:
+    """The start's links of every segment (global order) as NumPy arrays, read off
+    `forward` (one compiled program per body, shared with the pictures and the set-up of
+    the constraints): a segment's proximal joint is its parent's distal one."""
+    k = forward(body, init)
+    joints = np.asarray(k.joint_positions)
+    # Filled in by tree_at, as NumPy arrays: Links' annotations name JAX arrays.
+    links = Links(k.R_world_base, k.R_world_twisted, k.centroids, k.centroids)
+    return eqx.tree_at(
+        lambda li: (li.R_base, li.R_twisted, li.p_proximal, li.p_distal),
+        links,
+        (
+            np.asarray(k.R_world_base),
+            np.asarray(k.R_world_twisted),
+            joints[np.asarray(body.parent) + 1],
+            joints[1:],
+        ),
+    )
 
 
 def beyond_bound(body: Body, layout: Layout, init: Pose, xyz: ArrayLike, links=None) -> np.ndarray:
@@ -194,9 +211,6 @@ def _farther(xyz: ArrayLike, anchor: np.ndarray, bound: np.ndarray) -> np.ndarra
         return np.isfinite(xyz).all(-1) & (dist > bound)
 
 
-_start_links_jit = eqx.filter_jit(start_links)
-
-
 def phase_plan(
     body: Body, layouts: list[Layout], phase: int, init: Pose, xyz: ArrayLike, max_steps: int
 ) -> tuple[np.ndarray, np.ndarray, list[int]]:
@@ -234,9 +248,9 @@ def _all_starts(
 
 # Compiled once per problem shape and reused by every later call (under jax.grad too: their
 # inputs carry no derivatives, so the compiled solve is the same).
-_all_starts_jit = eqx.filter_jit(_all_starts)
-_assess_jit = eqx.filter_jit(assess)
-_round_jit = eqx.filter_jit(attempt_round)
+_all_starts_jit = compiled(_all_starts)
+_assess_jit = compiled(assess)
+_round_jit = compiled(attempt_round)
 
 
 def _select(take: Array, a, b):
@@ -247,17 +261,16 @@ def _select(take: Array, a, b):
 def run_start(body, layout, init, ts, k: int, caps: list[int], tols, closed_form) -> Attempt:
     """Start k of a phase, in rounds of `caps` steps until the solver stops; its attempt
     counts the steps of every round."""
-    x = jnp.zeros(layout.n_free, tols[0].dtype)
+    x = np.zeros(layout.n_free, tols[0].dtype)
     spent, fresh = 0, True
     for cap in caps:
-        x, done, a = _round_jit(
-            body, layout, init, ts, x, jnp.asarray(k), jnp.asarray(fresh), cap, *tols, closed_form
-        )
+        k_, fresh_, cap_ = np.int32(k), np.asarray(fresh), np.asarray(cap, np.int32)
+        x, done, a = _round_jit(body, layout, init, ts, x, k_, fresh_, cap_, *tols, closed_form)
         spent += int(a.steps)
         fresh = False
         if bool(done):
             break
-    return eqx.tree_at(lambda a: a.steps, a, jnp.asarray(spent))
+    return eqx.tree_at(lambda a: a.steps, a, np.asarray(spent))
 
 
 def closed_form(phase: int, ts: TargetSet) -> bool:
@@ -288,7 +301,7 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols):
         for k in range(1 if far.any() else starts):
             a = run_start(body, layout, start_pose, ts, k, caps, tols, closed_form(phase, ts))
             steps += int(a.steps)
-            if best is None or bool(better(a, best)):
+            if best is None or bool(better(*jax.tree.map(np.asarray, (a, best)))):
                 best = a
             if bool(a.ok):
                 return best, steps, beyond

@@ -68,6 +68,8 @@ class Problem(eqx.Module):
     x0: Float[Array, " n_free"]  # the start's free variables
     pull: Float[Array, " n_free"]  # square roots of the pull weights
     stiffness: Float[Array, " n_free"]  # the free variables are the unknowns times this
+    start: Links  # the start's links of every segment (global order), walked once
+    tau_start: Float[Array, " n_seg"]  # the start's twists of every segment
 
     # --- the free vector to the live segments -------------------------------------------
     def state(self, x: Array):
@@ -350,6 +352,8 @@ def make_problem(body: Body, layout: Layout, init: Pose) -> Problem:
         x0=x0,
         pull=jnp.asarray(np.concatenate(pull), x0.dtype),
         stiffness=jnp.asarray(stiffness, x0.dtype),
+        start=links,
+        tau_start=tau,
     )
 
 

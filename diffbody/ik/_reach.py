@@ -17,6 +17,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._body import Body, Pose
+from .._programs import compiled
 from ._attempt import Attempt
 from ._constraints import (
     geometry_key,
@@ -155,14 +156,14 @@ def solve_reach(
         raise ValueError("solve_reach: give a position or axis target besides the constraints")
     ts, order = resolve_targets(body, goals)
     default_init = init is None
-    init = _rest_pose_jit(body) if default_init else init
+    init = body.rest_pose() if default_init else init
     stand = standing and not free_root and segments is None
     phase_targets = constrained_targets(body, ts, flat, init, stand, default_init)
     layouts = phase_layouts(
         body, phase_targets, spine=spine, free_root=free_root, segments=segments, stand=stand
     )
     dtype = jnp.result_type(float)
-    tols = (jnp.asarray(tol_position, dtype), jnp.asarray(tol_angle, dtype))
+    tols = (_scalar(tol_position, dtype), _scalar(tol_angle, dtype))
     run = solve_traced if is_traced(body, init, phase_targets) else solve_host
     best, steps, beyond = run(body, layouts, init, phase_targets, int(starts), int(max_steps), tols)
     final = layouts[-1]
@@ -211,9 +212,6 @@ def _with(ts: TargetSet, c) -> TargetSet:
     return eqx.tree_at(lambda t: t.constraints, ts, c, is_leaf=is_none)
 
 
-_rest_pose_jit = eqx.filter_jit(lambda body: body.rest_pose())
-
-
 def _result(body, pose, best: Attempt, ts: TargetSet, order, beyond, steps, tols) -> ReachResult:
     """The verdicts of the kept attempt, back in the order the targets were given (`order`:
     their places in `ts`, points first)."""
@@ -247,7 +245,7 @@ def _conclude(body, keep, best: Attempt, ts, order, beyond, steps, tols) -> Reac
     return _result(body, finish(body, best.pose, keep), best, ts, order, beyond, steps, tols)
 
 
-_conclude_jit = eqx.filter_jit(_conclude)
+_conclude_jit = compiled(_conclude)
 
 
 def reach_status(reached: Array, valid: Array, beyond: Array, kept: Array | None = None) -> Array:
@@ -272,6 +270,13 @@ def reach_status(reached: Array, valid: Array, beyond: Array, kept: Array | None
         ReachStatus.CONSTRAINT_VIOLATED,
         jnp.where(jnp.all(reached), ReachStatus.SUCCESS, missed),
     ).astype(int)
+
+
+def _scalar(value, dtype) -> Array:
+    """A setting as a device scalar of `dtype` (traced settings stay traced)."""
+    if isinstance(value, jax.core.Tracer):
+        return jnp.asarray(value, dtype)
+    return jax.device_put(np.asarray(value, dtype))
 
 
 def check_settings(**settings) -> None:

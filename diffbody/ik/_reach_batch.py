@@ -16,6 +16,7 @@ from jaxtyping import Array, ArrayLike
 
 from .._batches import chunk_rows, map_chunks, row_sharding
 from .._body import Body, Pose
+from .._programs import compiled
 from .._spine import spine_angles
 from ..files._targets_file import read_targets
 from ._attempt import Attempt, attempt_round, better, phase_steps, round_caps
@@ -49,11 +50,10 @@ def _finish_rows(body, poses, keep):
     return jax.vmap(lambda p: finish(body, p, keep))(poses)
 
 
-# One compiled function per (body structure, layout, chunk size, round cap), shared by all
-# chunks, starts and rounds (the start index is traced) and by all calls with the same
-# shapes.
-_round_rows_jit = eqx.filter_jit(_round_rows)
-_finish_rows_jit = eqx.filter_jit(_finish_rows)
+# One compiled function per (body structure, layout, chunk size), shared by all chunks,
+# starts, rounds and round caps (the start index and the cap are data).
+_round_rows_jit = compiled(_round_rows)
+_finish_rows_jit = compiled(_finish_rows)
 
 # Rows per compiled call of the passes over the rows that still miss (further rounds and
 # starts, the trunk's phase), when fewer than half a chunk: the few rows left after the
@@ -230,8 +230,8 @@ def _round(s: _Setup, layout: Layout, rows, poses: Pose | None, x, ks, fresh, ca
     """One round of rows (their start poses, None: all from s.init; free vectors, start
     indices and whether each begins its start), in chunks: the free vectors, whether each
     solve ended, the attempts."""
-
     template = s.templates[next(i for i, lay in enumerate(s.layouts) if lay is layout)]
+    cap = np.asarray(cap, np.int32)  # data: every round cap shares one program
 
     def fn(p, xyz, x, k, f):
         return _round_rows_jit(s.body, layout, p, template, xyz, x, k, f, cap, *s.tols, closed)

@@ -23,15 +23,33 @@ SPREAD = 1.3  # the starts' range of the free variables (sin map: +-96 % of each
 def halton(n_starts: int, dim: int) -> np.ndarray:
     """(n_starts, dim) points of the Halton sequence in [-SPREAD, SPREAD] (row 0 unused).
 
-    scipy's unscrambled sequence: dimension d in base the d-th prime for any dim (no two
-    dimensions share a base). Scrambling would spread the large-prime dimensions of a
-    whole-body problem better over the first 64 points, but it would move every start of
-    the limb problems (9 to 20 variables) and with them the reaches that need a second
-    start: kept unscrambled, those are as before."""
-    from scipy.stats import qmc  # on first use: importing scipy.stats costs a few tenths of a s
+    Unscrambled: dimension d is the radical inverse of the point's index in base the d-th
+    prime (no two dimensions share a base), index 0 first: scipy.stats.qmc.Halton's table
+    with scramble=False, without importing scipy.stats (about a second of a process's
+    start). Scrambling would spread the large-prime
+    dimensions of a whole-body problem better over the first 64 points, but it would move
+    every start of the limb problems (9 to 20 variables) and with them the reaches that
+    need a second start."""
+    index = np.arange(n_starts)
+    points = np.zeros((n_starts, max(dim, 1)))
+    for d, base in enumerate(_primes(max(dim, 1))):
+        i, f = index.copy(), 1.0
+        while np.any(i > 0):
+            f /= base
+            points[:, d] += f * (i % base)
+            i //= base
+    return SPREAD * (2.0 * points[:, :dim] - 1.0)
 
-    points = qmc.Halton(d=max(dim, 1), scramble=False).random(n_starts)[:, :dim]
-    return SPREAD * (2.0 * points - 1.0)
+
+def _primes(n: int) -> list[int]:
+    """The first n primes."""
+    primes: list[int] = []
+    k = 2
+    while len(primes) < n:
+        if all(k % p for p in primes if p * p <= k):
+            primes.append(k)
+        k += 1
+    return primes
 
 
 MAX_STARTS = 64  # starts beyond this many repeat the table (each is tried at most once)

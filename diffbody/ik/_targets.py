@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._body import Body, Pose, without_names
+from .._body import Body, Pose
 from .._device_arrays import device_array
 from .._kinematics import forward
 from ..contact._environment import Environment
@@ -257,7 +257,7 @@ def _floor_host(body: Body, soles: np.ndarray, init: Pose) -> float:
     """`_floor` with concrete inputs: the compiled `forward` that every pose of the body
     structure shares, the rest in NumPy (a program of its own would compile for set-up only;
     docs/design.md, section 9, "Host set-up")."""
-    k = forward(without_names(body), init)
+    k = forward(body, init)
     centers, radii = np.asarray(k.sphere_centers), np.asarray(k.sphere_radii)
     return float(np.min(centers[soles, 2] - radii[soles]))
 

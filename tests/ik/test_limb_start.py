@@ -43,7 +43,7 @@ def test_the_start_lands_on_most_reachable_targets(male50, effector, segments):
     def start_error(p):
         t = eqx.tree_at(lambda t: t.point_xyz, ts, p[None])
         problem = make_problem(male50, layout, rest)
-        x = limb_start(male50, layout, rest, t, problem)
+        x = limb_start(male50, layout, t, problem)
         pose = problem.pose(x, rest)
         return problem.errors(x, t)[0][0], jnp.max(db.stop_violation(male50, pose))
 

@@ -1,0 +1,198 @@
+"""How diffbody compiles its large programs (docs/design.md, section 3, "Programs").
+
+Two things cost a process its start: XLA's compile, and tracing and lowering the Python
+functions before it, which JAX's persistent compilation cache does not save.
+
+- XLA's CPU backend spends most of a solve program's compile in its fusion emitters:
+  compiled without them (`xla_cpu_use_fusion_emitters=False`, a per-program compile option,
+  so nothing else in the process changes) a reach round compiles in about half the time
+  (benchmarks/startup.py) and gives the same answers to float rounding
+  (tests/test_programs.py). The option is XLA's, not a stable API: where the installed XLA
+  does not know it, the program compiles with XLA's defaults; `DIFFBODY_XLA_DEFAULTS=1` asks
+  for the defaults everywhere.
+- Where JAX's persistent compilation cache is on (`jax_compilation_cache_dir`; the command
+  line turns it on), each program is also kept as a `jax.export` serialisation beside it,
+  keyed by the function, its static arguments, its array shapes, and the versions of JAX
+  and of diffbody's own source: a later process deserialises it and calls it instead of
+  tracing and lowering the Python function again. Anything else (another version, a traced
+  argument, static arguments that do not print the same in every process) takes the plain
+  path.
+"""
+
+import functools
+import hashlib
+import inspect
+import os
+import pickle
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+CPU_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+
+
+def compiled(fn):
+    """`eqx.filter_jit(fn)`, compiled with `CPU_OPTIONS` on the CPU while XLA accepts them
+    (then with XLA's defaults, for the rest of the process), and kept exported beside the
+    persistent compilation cache when there is one (module docstring)."""
+    fast = eqx.filter_jit(fn, compiler_options=CPU_OPTIONS)
+    plain = eqx.filter_jit(fn)
+
+    def run(args):
+        return with_options(fast, plain, args)
+
+    # A closure's captured values are not among its arguments: it is never exported (a
+    # decorator's wrapper, a type checker's, is looked through).
+    exportable = not getattr(inspect.unwrap(fn), "__closure__", None)
+
+    @functools.wraps(fn)
+    def call(*args):
+        if _traced(args):
+            return plain(*args)
+        folder = _export_folder()
+        if folder is None or not exportable or not _can_serialise():
+            return run(args)
+        return _exported_call(fn, folder, args, run)
+
+    return call
+
+
+_REFUSED: list[str] = []  # XLA refused CPU_OPTIONS once: the defaults from then on
+
+
+def with_options(fast, plain, args: tuple):
+    """fast(*args) (compiled with `CPU_OPTIONS`) where they apply, else plain(*args)."""
+    if not _use_options():
+        return plain(*args)
+    try:
+        return fast(*args)
+    except jax.errors.JaxRuntimeError as e:
+        if "No such compile option" not in str(e):
+            raise
+        _REFUSED.append(str(e))
+        return plain(*args)
+    except ValueError as e:
+        # Inside another jit (only a top-level jit takes compile options): the outer
+        # program's options hold.
+        if "top-level" not in str(e):
+            raise
+        return plain(*args)
+
+
+def _use_options() -> bool:
+    return (
+        not _REFUSED
+        and os.environ.get("DIFFBODY_XLA_DEFAULTS", "") in ("", "0")
+        and jax.default_backend() == "cpu"
+    )
+
+
+@functools.cache
+def _can_serialise() -> bool:
+    """Whether jax.export can write its programs (it needs flatbuffers)."""
+    try:
+        import flatbuffers  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _traced(tree) -> bool:
+    return any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves(tree))
+
+
+def _export_folder() -> Path | None:
+    base = jax.config.jax_compilation_cache_dir
+    return None if not base else Path(base) / "diffbody-exported"
+
+
+# --- exported programs ---------------------------------------------------------------------
+_LOADED: dict[str, tuple] = {}  # key -> (the compiled call, its output's shapes)
+
+
+def _exported_call(fn, folder: Path, args: tuple, run):
+    dynamic, static = eqx.partition(args, eqx.is_array)
+    leaves, treedef = jax.tree.flatten(dynamic)
+    if any(len(a.sharding.device_set) > 1 for a in leaves if isinstance(a, jax.Array)):
+        return run(args)  # sharded over several devices: exported for one
+    key = _key(fn, static, treedef, leaves)
+    if key is None:
+        return run(args)
+    if key not in _LOADED:
+        path = folder / f"{key}.bin"
+        try:
+            blob, template = pickle.loads(path.read_bytes())
+            exported = jax.export.deserialize(blob)
+        except (OSError, EOFError, pickle.UnpicklingError, ValueError, TypeError):
+            exported, template = _export(fn, static, treedef, leaves)
+            if exported is None:
+                return run(args)
+            _save(path, exported, template)
+        calls = (jax.jit(exported.call, compiler_options=CPU_OPTIONS), jax.jit(exported.call))
+        _LOADED[key] = (calls, template)
+    (fast, plain), template = _LOADED[key]
+    out = with_options(fast, plain, tuple(leaves))
+    return jax.tree.unflatten(jax.tree.structure(template), out)
+
+
+def _export(fn, static, treedef, leaves):
+    """The exported program of fn at these arguments and its output's shapes (a pytree of
+    `jax.ShapeDtypeStruct`, which pickles), or None when its output holds non-arrays."""
+    shapes: list = []
+
+    def flat(*dynamic_leaves):
+        out = fn(*eqx.combine(jax.tree.unflatten(treedef, dynamic_leaves), static))
+        shapes.append(jax.tree.map(_shape_of, out))
+        return jax.tree.leaves(out)
+
+    specs = [jax.ShapeDtypeStruct(jnp.shape(a), jnp.result_type(a)) for a in leaves]
+    exported = jax.export.export(jax.jit(flat))(*specs)
+    out = shapes[0]
+    if not all(isinstance(a, jax.ShapeDtypeStruct) for a in jax.tree.leaves(out)):
+        return None, None
+    return exported, out
+
+
+def _shape_of(a):
+    return jax.ShapeDtypeStruct(jnp.shape(a), jnp.result_type(a)) if eqx.is_array(a) else a
+
+
+def _save(path: Path, exported, template) -> None:
+    """Written to a temporary name and renamed: a reader never sees half a file."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_bytes(pickle.dumps((exported.serialize(), template)))
+        tmp.replace(path)
+    except OSError:
+        pass  # a read-only cache: the program still runs, and is exported again next time
+
+
+def _key(fn, static, treedef, leaves) -> str | None:
+    """What the program depends on, hashed: the function, its static arguments (pickled:
+    every field, in full), the arrays' structure, shapes and dtypes, the versions. None
+    when the static arguments do not pickle (a function made at run time)."""
+    try:
+        static_bytes = pickle.dumps(static, protocol=4)
+    except (pickle.PicklingError, AttributeError, TypeError):
+        return None
+    spec = [(jnp.shape(a), str(jnp.result_type(a)), getattr(a, "weak_type", False)) for a in leaves]
+    code = inspect.unwrap(fn).__code__
+    where = (fn.__module__, fn.__qualname__, code.co_filename, str(code.co_firstlineno))
+    parts = (*where, str(treedef), repr(spec), jax.__version__, _source())
+    parts += (jax.default_backend(), str(jax.config.jax_enable_x64))
+    h = hashlib.sha256(static_bytes)
+    h.update("\n".join(parts).encode())
+    return h.hexdigest()[:32]
+
+
+@functools.cache
+def _source() -> str:
+    """A hash of diffbody's own source: an edited package exports its programs anew."""
+    h = hashlib.sha256()
+    root = Path(__file__).parent
+    for path in sorted(root.rglob("*.py")):
+        h.update(path.read_bytes())
+    return h.hexdigest()

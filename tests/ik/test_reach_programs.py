@@ -1,0 +1,70 @@
+"""What a reach compiles: settings that are data share one program (docs/design.md,
+section 6, "Programs")."""
+
+import contextlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import diffbody as db
+from diffbody.ik._attempt import ROUND_STEPS, solve_free
+from diffbody.ik._phases import phase_layouts
+from diffbody.ik._reach import constrained_targets
+from diffbody.ik._targets import Target, resolve_targets
+
+COMPILE = "/jax/core/compile/backend_compile_duration"
+
+
+@contextlib.contextmanager
+def counted_compiles():
+    """The XLA compiles inside the block, as a list that fills as they happen."""
+    seen: list[float] = []
+
+    def listen(event: str, secs: float, **_) -> None:
+        if event == COMPILE:
+            seen.append(secs)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        yield seen
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+
+
+def test_the_step_budget_is_data(male50):
+    """Another `max_steps` (other round caps: 10 + 10 + 5 after 10 + 10 + 10) and another
+    reachable target compile nothing new."""
+    first = db.solve_reach(male50, [Target.position("left_hand.palm", (0.35, 0.3, 1.1))])
+    assert int(first.status) == 0
+    with counted_compiles() as seen:
+        out = db.solve_reach(
+            male50, [Target.position("left_hand.palm", (0.3, 0.35, 1.0))], max_steps=25
+        )
+    assert int(out.status) == 0
+    assert seen == []
+
+
+@pytest.mark.parametrize("cap", [1, 2, 4, 7])
+def test_a_step_cap_given_as_data_stops_where_a_static_one_does(male50, cap):
+    """`solve_free` with `cap` steps inside a loop bounded by `ROUND_STEPS` returns what
+    optimistix's own `max_steps = cap` returns (the reference): the same free vector, steps
+    and verdict, on a target that needs more steps than the cap."""
+    rest = male50.rest_pose()
+    target = Target.position("left_hand.palm", (-0.3, 0.4, 1.2))
+    ts, _ = resolve_targets(male50, [target])
+    phase_targets = constrained_targets(male50, ts, [target], rest, False)
+    layout = phase_layouts(
+        male50, phase_targets, spine=True, free_root=False, segments=None, stand=False
+    )[0]
+    tols = (jnp.asarray(1e-3), jnp.asarray(np.deg2rad(1.0)))
+    common = (male50, layout, rest, phase_targets[0], jnp.zeros(layout.n_free))
+    start = (jnp.asarray(0), jnp.asarray(True))
+    x_static, steps_static, done_static = solve_free(*common, *start, cap, *tols, True)
+    x_data, steps_data, done_data = solve_free(
+        *common, *start, ROUND_STEPS, *tols, True, cap=jnp.asarray(cap)
+    )
+    assert int(steps_static) == cap and not bool(done_static)
+    assert int(steps_data) == cap and not bool(done_data)
+    np.testing.assert_allclose(x_data, x_static, rtol=0, atol=1e-6)
