@@ -27,9 +27,13 @@ from ._orientation import (
     vector_to_inclination_azimuth,
 )
 from ._posture import apply_standard_orientation, pose_from_joint_positions
+from ._programs import keep_compiled
 from ._render import draw, draw_cloud, render
 from ._spine import BendResult, bend_pose, bendspine, movespine, spine_angles, with_spine_angles
 from ._streaming import Interrupted
+
+# A later process reads back what this one compiles (docs/design.md, section 3, "Programs").
+keep_compiled()
 
 # The families load on first use (PEP 562): `diffbody reach` needs neither the image nor the
 # motion-capture code, and importing every family costs a few tenths of a second.

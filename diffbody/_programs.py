@@ -33,6 +33,23 @@ import jax.numpy as jnp
 CPU_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 
+def keep_compiled() -> None:
+    """Turn on JAX's persistent compilation cache unless the process chose one: the folder
+    $JAX_COMPILATION_CACHE_DIR when set, else $XDG_CACHE_HOME/diffbody/jax
+    (~/.cache/diffbody/jax); DIFFBODY_NO_CACHE=1 leaves it off. Called when diffbody is
+    imported and by the command line, so that a later process reads back what an earlier one
+    compiled and exported. Every compiled function is kept, however quick to compile (JAX
+    keeps only those over 1 s by default): reading one back costs a few milliseconds,
+    compiling it tens."""
+    if os.environ.get("DIFFBODY_NO_CACHE") == "1":
+        return
+    if not jax.config.jax_compilation_cache_dir:
+        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+        jax.config.update("jax_compilation_cache_dir", str(base / "diffbody" / "jax"))
+    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+
+
 def compiled(fn):
     """`eqx.filter_jit(fn)`, compiled with `CPU_OPTIONS` on the CPU while XLA accepts them
     (then with XLA's defaults, for the rest of the process), and kept exported beside the
@@ -130,7 +147,12 @@ def _exported_call(fn, folder: Path, args: tuple, run):
             if exported is None:
                 return run(args)
             _save(path, exported, template)
-        calls = (jax.jit(exported.call, compiler_options=CPU_OPTIONS), jax.jit(exported.call))
+
+        def run_exported(*a):
+            return exported.call(*a)
+
+        run_exported.__name__ = getattr(fn, "__name__", "exported")  # fn's name in the logs
+        calls = (jax.jit(run_exported, compiler_options=CPU_OPTIONS), jax.jit(run_exported))
         _LOADED[key] = (calls, template)
     (fast, plain), template = _LOADED[key]
     out = with_options(fast, plain, tuple(leaves))

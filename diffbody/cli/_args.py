@@ -6,31 +6,11 @@ import math
 import os
 
 CACHE_HELP = """\
-compiled solvers: the commands that solve (reach, batch, scale, fit, mocap, webb) keep what
-they compile in JAX's persistent compilation cache, so that a repeated command reads it back
-instead of compiling again: the folder $JAX_COMPILATION_CACHE_DIR when set, else
+compiled solvers: diffbody keeps what it compiles in JAX's persistent compilation cache (and
+its solve programs exported beside it), so that a repeated command reads it back instead of
+tracing and compiling again: the folder $JAX_COMPILATION_CACHE_DIR when set, else
 $XDG_CACHE_HOME/diffbody/jax (~/.cache/diffbody/jax). Delete that folder to clear it (it is
 refilled as needed); DIFFBODY_NO_CACHE=1 leaves it off."""
-
-
-def keep_compiled() -> None:
-    """Turn on JAX's persistent compilation cache for the command line, so that a repeated
-    `reach` or `batch` reuses what an earlier run compiled (README, "Benchmarks"). The
-    folder is $JAX_COMPILATION_CACHE_DIR when set, else $XDG_CACHE_HOME/diffbody/jax
-    (~/.cache/diffbody/jax); DIFFBODY_NO_CACHE=1 leaves the cache off. Every compiled
-    function is kept, however quick to compile (JAX keeps only those over 1 s by default):
-    reading one back costs a few milliseconds, compiling it tens."""
-    from pathlib import Path
-
-    import jax
-
-    if os.environ.get("DIFFBODY_NO_CACHE") == "1":
-        return
-    if not jax.config.jax_compilation_cache_dir:
-        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-        jax.config.update("jax_compilation_cache_dir", str(base / "diffbody" / "jax"))
-    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
 def prefetch(*modules: str) -> None:

@@ -8,8 +8,9 @@ import signal
 import sys
 from typing import NoReturn
 
+from .._programs import keep_compiled
 from ._animate import add_animate_command
-from ._args import CACHE_HELP, keep_compiled
+from ._args import CACHE_HELP
 from ._batch import add_batch_command
 from ._export import add_export_command
 from ._fit import add_fit_command

@@ -70,7 +70,7 @@ def test_batch_bad_input_exits_2(tmp_path, capsys, content, effectors, message):
     assert message in err
 
 
-CACHE_DIR = "import jax; from diffbody.cli._args import keep_compiled; keep_compiled(); "
+CACHE_DIR = "import jax; from diffbody._programs import keep_compiled; keep_compiled(); "
 CACHE_DIR += "print(jax.config.jax_compilation_cache_dir)"
 
 
