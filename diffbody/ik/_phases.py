@@ -266,6 +266,9 @@ def run_start(body, layout, init, ts, k: int, caps: list[int], tols, closed_form
     for cap in caps:
         k_, fresh_, cap_ = np.int32(k), np.asarray(fresh), np.asarray(cap, np.int32)
         x, done, a = _round_jit(body, layout, init, ts, x, k_, fresh_, cap_, *tols, closed_form)
+        # Back on the host, as the first round's: a device array (committed to its device)
+        # would compile the same round again.
+        x = np.asarray(x)
         spent += int(a.steps)
         fresh = False
         if bool(done):

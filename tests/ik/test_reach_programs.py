@@ -2,6 +2,7 @@
 section 6, "Programs")."""
 
 import contextlib
+import logging
 
 import jax
 import jax.numpy as jnp
@@ -68,3 +69,32 @@ def test_a_step_cap_given_as_data_stops_where_a_static_one_does(male50, cap):
     assert int(steps_static) == cap and not bool(done_static)
     assert int(steps_data) == cap and not bool(done_data)
     np.testing.assert_allclose(x_data, x_static, rtol=0, atol=1e-6)
+
+
+class _Compiles(logging.Handler):
+    """The names of the programs JAX compiles (or reads back) while installed."""
+
+    def __init__(self):
+        super().__init__()
+        self.names: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        message = record.getMessage()
+        if message.startswith("Compiling jit("):
+            self.names.append(message[len("Compiling jit(") :].split(")")[0])
+
+
+def test_a_standing_solve_compiles_each_phase_once(male50):
+    """A far reach with the right hand (no other test's effector): the limbs' round and the
+    trunk's, each compiled once, although every round after the first starts from the last
+    one's answer (a device array, where the first round's is a host array)."""
+    handler = _Compiles()
+    logger = logging.getLogger("jax")
+    logger.addHandler(handler)
+    try:
+        with jax.log_compiles():
+            out = db.solve_reach(male50, [Target.position("right_hand.palm", (0.85, -0.35, 0.75))])
+    finally:
+        logger.removeHandler(handler)
+    assert out.pose.spine_target is not None  # the trunk joined
+    assert handler.names.count("attempt_round") == 2, handler.names
