@@ -221,7 +221,7 @@ def run_cli(body, device: str, cache_dir: str, out_dir: str) -> CliRun:
     )
     # The command runs in float32 whatever this process does, and its JSON holds degrees.
     errors, violations = check(body, pose, np.asarray(CLI_TARGET))
-    reported = np.asarray(data["residuals"][:1], np.float64)
+    reported = np.asarray(data["residuals"]["targets"][:1], np.float64)
     return CliRun(
         wall_s, Solved(errors, violations, reported, limits_tol(jnp.float32)), proc.stdout
     )

@@ -12,17 +12,19 @@ seconds the read-back; "compiles" counts the others), the "Finished tracing" and
 jaxpr to MLIR module conversion" lines the seconds spent tracing and lowering.
 
 1. The README's command, `diffbody reach --effector left_hand.palm --target 0.35 0.3 1.1 --out
-   reach.pose.json --png reach.png`, in a temporary folder: the wall time of the process. The
-   command keeps every program in the cache (`diffbody.cli._args.keep_compiled`).
+   reach.pose.json --png reach.png`, in a temporary folder: the wall time of the process.
 2. `solve_reach` on the whole body, standing (the default), `db.load_body()`, one palm target
    0.9 m in front of the left shoulder's rest position and 10 cm below it (docs/guide.md, the
    reach ladder: the hips and the spine join the arm): the first call (import and
-   `load_body` apart) and a warm call (the median of 20 more calls on the same target). The
-   Python API leaves JAX's cache defaults: only programs that took >= 1 s to compile are kept.
+   `load_body` apart, cold and cached) and a warm call (the median of 20 more calls on the same
+   target). Importing diffbody turns the cache on (`diffbody._programs.keep_compiled`): every
+   program is kept, and the solve programs are exported beside it.
 3. `import diffbody` (of which `import jax`), after an untimed `compileall` of the package.
 
 `--repeats N` fresh processes per figure (default 3; --quick 1): the median and the range.
-`--quick`: 3 warm calls instead of 20, still every figure. Goals: those of benchmarks/ik.py.
+`--quick`: 3 warm calls instead of 20, still every figure. Goals: a first answer in seconds
+(README command < 4 s cold and < 1.5 s cached; the standing whole-body solve's first call
+< 5 s cold and < 1.5 s cached, a warm call < 2 ms).
 """
 
 import argparse
@@ -42,15 +44,12 @@ from pathlib import Path
 
 import results
 from common import goal, machine, print_goals, select_device, start_run
-from ik import (
-    CLI_TARGET,
-    EFFECTOR,
-    GOAL_CLI_COLD_S,
-    GOAL_CLI_WARM_S,
-    GOAL_FIRST_CALL_S,
-    GOAL_WARM_S,
-)
+from ik import CLI_TARGET, EFFECTOR
 from render_readme import markdown
+
+GOAL_CLI_COLD_S, GOAL_CLI_CACHED_S = 4.0, 1.5  # the README command, wall
+GOAL_FIRST_CALL_COLD_S, GOAL_FIRST_CALL_CACHED_S = 5.0, 1.5  # whole body, standing
+GOAL_WARM_MS = 2.0
 
 # m: the left shoulder at rest, (0, 0.193, 1.388), + (0.9, 0, -0.1): the guide's reach ladder
 REACH_TARGET = (0.9, 0.193, 1.288)
@@ -243,9 +242,20 @@ def main() -> None:
         goal(name, value, limit, fmt=".2f", unit=unit, op="<")
         for name, value, limit, unit in (
             ("README reach command, empty cache, wall", cli["cold"], GOAL_CLI_COLD_S, " s"),
-            ("README reach command, filled cache, wall", cli["cached"], GOAL_CLI_WARM_S, " s"),
-            ("solve_reach whole body, first call, cold", first["cold"], GOAL_FIRST_CALL_S, " s"),
-            (f"solve_reach whole body, warm, median of {warm}", warm_ms, GOAL_WARM_S * 1e3, " ms"),
+            ("README reach command, filled cache, wall", cli["cached"], GOAL_CLI_CACHED_S, " s"),
+            (
+                "solve_reach standing, first call, empty cache",
+                first["cold"],
+                GOAL_FIRST_CALL_COLD_S,
+                " s",
+            ),
+            (
+                "solve_reach standing, first call, filled cache",
+                first["cached"],
+                GOAL_FIRST_CALL_CACHED_S,
+                " s",
+            ),
+            (f"solve_reach standing, warm, median of {warm}", warm_ms, GOAL_WARM_MS, " ms"),
         )
     ]
     print_goals(goals, f"goals (medians of {repeats} fresh processes; 2-core CPU goals, float32)")
