@@ -12,7 +12,9 @@ seconds the read-back; "compiles" counts the others), the "Finished tracing" and
 jaxpr to MLIR module conversion" lines the seconds spent tracing and lowering.
 
 1. The README's command, `diffbody reach --effector left_hand.palm --target 0.35 0.3 1.1 --out
-   reach.pose.json --png reach.png`, in a temporary folder: the wall time of the process.
+   reach.pose.json --png reach.png`, in a temporary folder: the wall time of the process; and
+   once more cold with the solve programs compiled with XLA's defaults
+   (DIFFBODY_XLA_DEFAULTS=1), which shows what diffbody's compile options save.
 2. `solve_reach` on the whole body, standing (the default), `db.load_body()`, one palm target
    0.9 m in front of the left shoulder's rest position and 10 cm below it (docs/guide.md, the
    reach ladder: the hips and the spine join the arm): the first call (import and
@@ -50,6 +52,7 @@ from render_readme import markdown
 GOAL_CLI_COLD_S, GOAL_CLI_CACHED_S = 4.0, 1.5  # the README command, wall
 GOAL_FIRST_CALL_COLD_S, GOAL_FIRST_CALL_CACHED_S = 5.0, 1.5  # whole body, standing
 GOAL_WARM_MS = 2.0
+DEFAULTS_ROW = "diffbody reach, README command, XLA's defaults (DIFFBODY_XLA_DEFAULTS=1) (s)"
 
 # m: the left shoulder at rest, (0, 0.193, 1.388), + (0.9, 0, -0.1): the guide's reach ladder
 REACH_TARGET = (0.9, 0.193, 1.288)
@@ -124,11 +127,15 @@ def parse_log(stderr: str) -> dict[str, Compiles]:
     return phases
 
 
-def fresh(argv: list[str], cache: str, cwd: str) -> tuple[float, str, dict[str, Compiles]]:
-    """Run argv as a user would, the compilation cache in `cache`: (wall seconds, its stdout,
-    its phases' compiles). A failure stops the benchmark with its output."""
+def fresh(
+    argv: list[str], cache: str, cwd: str, **extra: str
+) -> tuple[float, str, dict[str, Compiles]]:
+    """Run argv as a user would, the compilation cache in `cache` (and `extra` variables):
+    (wall seconds, its stdout, its phases' compiles). A failure stops the benchmark with its
+    output."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_", "XLA_", "DIFFBODY_"))}
     env.update(JAX_PLATFORMS="cpu", JAX_COMPILATION_CACHE_DIR=cache, JAX_LOG_COMPILES="1")
+    env.update(extra)
     t0 = time.perf_counter()
     proc = subprocess.run(argv, env=env, cwd=cwd, capture_output=True, text=True)
     wall_s = time.perf_counter() - t0
@@ -202,6 +209,11 @@ def main() -> None:
                 add("diffbody reach, README command (s)", state, wall_s, phases["start"])
                 if rep == 0 and state == "cold":
                     first_cold["diffbody reach"] = phases["start"]
+        # The same, its programs compiled with XLA's defaults (diffbody._programs.CPU_OPTIONS
+        # off): what the per-program options save.
+        with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out_dir:
+            wall_s, _, phases = fresh(reach_command(), cache, out_dir, DIFFBODY_XLA_DEFAULTS="1")
+            add(DEFAULTS_ROW, "cold", wall_s, phases["start"])
         with tempfile.TemporaryDirectory() as cache:
             for state in ("cold", "cached"):
                 _, stdout, phases = fresh([sys.executable, "-c", child], cache, cache)
