@@ -29,6 +29,7 @@ from pathlib import Path
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import jaxlib.version
 
 CPU_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
@@ -204,7 +205,10 @@ def _key(fn, static, treedef, leaves) -> str | None:
     code = inspect.unwrap(fn).__code__
     where = (fn.__module__, fn.__qualname__, code.co_filename, str(code.co_firstlineno))
     parts = (*where, str(treedef), repr(spec), jax.__version__, _source())
-    parts += (jax.default_backend(), str(jax.config.jax_enable_x64))
+    # What else changes a lowering: the backend, the dtypes, a matmul precision.
+    config = jax.config
+    parts += (jaxlib.version.__version__, jax.default_backend(), str(config.jax_enable_x64))
+    parts += (str(config.jax_default_matmul_precision), str(config.jax_numpy_dtype_promotion))
     h = hashlib.sha256(static_bytes)
     h.update("\n".join(parts).encode())
     return h.hexdigest()[:32]
