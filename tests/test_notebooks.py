@@ -566,6 +566,17 @@ def benchmark_prose() -> list[str]:
     curves = [
         g for g in result("mocap")["goals"] if re.match(r"(hip_flexion|knee|ankle)", g["figure"])
     ]
+    cli_cold, cli_cached = (
+        goal("startup", f"README reach command, {c}") for c in ("empty", "filled")
+    )
+    first_cold, first_cached = (
+        goal("startup", f"solve_reach standing, first call, {c}") for c in ("empty", "filled")
+    )
+    defaults = row(
+        "startup",
+        "startup",
+        "diffbody reach, README command, XLA's defaults (DIFFBODY_XLA_DEFAULTS=1) (s)",
+    )
     cloud = goal("sphere_cloud", "segment-length error, 5 mm noise, 10% outliers")
     landed = goal("sphere_cloud", "clouds landed, 5 mm noise, 10% outliers, spread 0.3")
     assert len(curves) == 6 and len({g["goal"] for g in curves}) == 1
@@ -589,6 +600,11 @@ def benchmark_prose() -> list[str]:
         f"Lumbar extension differs by {abs(offsets['lumbar_extension']):.0f} degrees",
         f"Goal: mean < {number(cloud['goal']):g} mm at 5 mm noise and 10 % outliers, **not met**",
         f"not yet the {number(landed['goal']):g} % of clouds at spread 0.3 turned any way",
+        f"The first run compiles the solver ({number(cli_cold['measured']):.1f} s on a quiet "
+        f"2-core machine; {number(defaults[1]):.1f} s with XLA's default compile options)",
+        f"later runs read the compiled programs back ({number(cli_cached['measured']):.1f} s,",
+        f"a standing whole-body reach's first call takes {number(first_cold['measured']):.1f} s "
+        f"with an empty cache and {number(first_cached['measured']):.1f} s in a later session",
     ]
 
 
