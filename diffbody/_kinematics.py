@@ -261,7 +261,9 @@ def forward(body: Body, pose: Pose) -> Kinematics:
     """
     if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((body, pose))):
         return _forward(body, pose)
-    return _forward_compiled(without_names(body), pose)
+    # The pose through the host: a pose a compiled solve returned (committed to its device)
+    # and one built on the host would otherwise compile the same program twice.
+    return _forward_compiled(without_names(body), jax.device_get(pose))
 
 
 def _forward(body: Body, pose: Pose) -> Kinematics:

@@ -87,7 +87,9 @@ class _Compiles(logging.Handler):
 def test_a_standing_solve_compiles_each_phase_once(male50):
     """A far reach with the right hand (no other test's effector): the limbs' round and the
     trunk's, each compiled once, although every round after the first starts from the last
-    one's answer (a device array, where the first round's is a host array)."""
+    one's answer (a device array, where the first round's is a host array); and `forward`,
+    compiled for the rest pose, not again for the trunk's start (a solve's answer)."""
+    db.forward(male50, male50.rest_pose())
     handler = _Compiles()
     logger = logging.getLogger("jax")
     logger.addHandler(handler)
@@ -98,3 +100,4 @@ def test_a_standing_solve_compiles_each_phase_once(male50):
         logger.removeHandler(handler)
     assert out.pose.spine_target is not None  # the trunk joined
     assert handler.names.count("attempt_round") == 2, handler.names
+    assert "_forward" not in handler.names, handler.names
