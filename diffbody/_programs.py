@@ -127,25 +127,35 @@ def _export_folder() -> Path | None:
 
 
 # --- exported programs ---------------------------------------------------------------------
-_LOADED: dict[str, tuple] = {}  # key -> (the compiled call, its output's shapes)
+_LOADED: dict[str, tuple] = {}  # key -> (the compiled calls, the output's structure)
+# (fn, the arguments' structure and static values, the arrays' shapes, dtypes and
+# placements) -> key, or None for the plain path: what a warm call looks up, in microseconds,
+# instead of pickling and hashing its static arguments again.
+_SEEN: dict[tuple, str | None] = {}
 
 
 def _exported_call(fn, folder: Path, args: tuple, run):
-    dynamic, static = eqx.partition(args, eqx.is_array)
-    leaves, treedef = jax.tree.flatten(dynamic)
-    if any(len(a.sharding.device_set) > 1 for a in leaves if isinstance(a, jax.Array)):
-        return run(args)  # sharded over several devices: exported for one
-    key = _key(fn, static, treedef, leaves)
+    leaves, structure = jax.tree.flatten(args)
+    is_array = [eqx.is_array(a) for a in leaves]
+    seen = (fn, structure, tuple(_spec(a) if m else a for a, m in zip(leaves, is_array)))
+    try:
+        key = _SEEN[seen] if seen in _SEEN else _first_key(fn, args, seen)
+    except TypeError:  # a static argument that cannot be hashed
+        key = _first_key(fn, args, None)
     if key is None:
         return run(args)
+    arrays = [a for a, m in zip(leaves, is_array) if m]
     if key not in _LOADED:
+        dynamic, static = eqx.partition(args, eqx.is_array)
+        treedef = jax.tree.structure(dynamic)
         path = folder / f"{key}.bin"
         try:
             blob, template = pickle.loads(path.read_bytes())
             exported = jax.export.deserialize(blob)
         except (OSError, EOFError, pickle.UnpicklingError, ValueError, TypeError):
-            exported, template = _export(fn, static, treedef, leaves)
+            exported, template = _export(fn, static, treedef, arrays)
             if exported is None:
+                _SEEN.pop(seen, None)
                 return run(args)
             _save(path, exported, template)
 
@@ -154,10 +164,28 @@ def _exported_call(fn, folder: Path, args: tuple, run):
 
         run_exported.__name__ = getattr(fn, "__name__", "exported")  # fn's name in the logs
         calls = (jax.jit(run_exported, compiler_options=CPU_OPTIONS), jax.jit(run_exported))
-        _LOADED[key] = (calls, template)
-    (fast, plain), template = _LOADED[key]
-    out = with_options(fast, plain, tuple(leaves))
-    return jax.tree.unflatten(jax.tree.structure(template), out)
+        _LOADED[key] = (calls, jax.tree.structure(template))
+    (fast, plain), out_structure = _LOADED[key]
+    return jax.tree.unflatten(out_structure, with_options(fast, plain, tuple(arrays)))
+
+
+def _spec(a) -> tuple:
+    """What of an array decides its program: shape, dtype, weak type, placement."""
+    placement = a.sharding if isinstance(a, jax.Array) else None
+    return (a.shape, a.dtype, getattr(a, "weak_type", False), placement)
+
+
+def _first_key(fn, args: tuple, seen: tuple | None) -> str | None:
+    """The key of a call not seen before (None: the plain path), remembered under `seen`."""
+    dynamic, static = eqx.partition(args, eqx.is_array)
+    leaves, treedef = jax.tree.flatten(dynamic)
+    if any(len(a.sharding.device_set) > 1 for a in leaves if isinstance(a, jax.Array)):
+        key = None  # sharded over several devices: exported for one
+    else:
+        key = _key(fn, static, treedef, leaves)
+    if seen is not None:
+        _SEEN[seen] = key
+    return key
 
 
 def _export(fn, static, treedef, leaves):

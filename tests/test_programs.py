@@ -75,6 +75,7 @@ def export_folder(tmp_path, monkeypatch):
     before = jax.config.jax_compilation_cache_dir
     jax.config.update("jax_compilation_cache_dir", str(tmp_path))
     monkeypatch.setattr(_programs, "_LOADED", {})
+    monkeypatch.setattr(_programs, "_SEEN", {})
     yield tmp_path / "diffbody-exported"
     jax.config.update("jax_compilation_cache_dir", before)
 
@@ -106,6 +107,7 @@ def test_a_kept_program_is_read_back_without_tracing(export_folder, monkeypatch)
     f(x, 3.0)  # another static argument: another program
     assert TRACED == [2.0, 3.0] and len(list(export_folder.glob("*.bin"))) == 2
     monkeypatch.setattr(_programs, "_LOADED", {})
+    monkeypatch.setattr(_programs, "_SEEN", {})
     monkeypatch.setattr(_programs, "_source", lambda: "edited")
     f(x, 2.0)
     assert TRACED == [2.0, 3.0, 2.0]
