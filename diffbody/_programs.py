@@ -10,13 +10,13 @@ functions before it, which JAX's persistent compilation cache does not save.
   (tests/test_programs.py). The option is XLA's, not a stable API: where the installed XLA
   does not know it, the program compiles with XLA's defaults; `DIFFBODY_XLA_DEFAULTS=1` asks
   for the defaults everywhere.
-- Where JAX's persistent compilation cache is on (`jax_compilation_cache_dir`; the command
-  line turns it on), each program is also kept as a `jax.export` serialisation beside it,
-  keyed by the function, its static arguments, its array shapes, and the versions of JAX
-  and of diffbody's own source: a later process deserialises it and calls it instead of
-  tracing and lowering the Python function again. Anything else (another version, a traced
-  argument, static arguments that do not print the same in every process) takes the plain
-  path.
+- Where JAX's persistent compilation cache is on (`jax_compilation_cache_dir`; importing
+  diffbody turns it on, `keep_compiled`), each program is also kept as a `jax.export`
+  serialisation beside it, keyed by the function, its static arguments (pickled), its array
+  shapes, and the versions of JAX and of diffbody's own source: a later process
+  deserialises it and calls it instead of tracing and lowering the Python function again.
+  Anything else (another version, a traced or sharded argument, a closure, static
+  arguments that do not pickle) takes the plain path.
 """
 
 import functools
