@@ -24,7 +24,7 @@ from ._orientation import (
     standard_twist_coded,
     vector_to_azimuth_polar,
 )
-from ._programs import compiled
+from ._programs import compiled, is_traced
 from ._rotations import (
     eps_for,
     exp_rotvec,
@@ -259,7 +259,7 @@ def forward(body: Body, pose: Pose) -> Kinematics:
         `Kinematics`: joint positions, frames, sphere centres and radii, feature points,
         centroids and the whole body's center of gravity.
     """
-    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((body, pose))):
+    if is_traced(body, pose):
         return _forward(body, pose)
     # The pose through the host: a pose a compiled solve returned (committed to its device)
     # and one built on the host would otherwise compile the same program twice.

@@ -67,7 +67,7 @@ def compiled(fn):
 
     @functools.wraps(fn)
     def call(*args):
-        if _traced(args):
+        if is_traced(args):
             return plain(*args)
         folder = _export_folder()
         if folder is None or not exportable or not _can_serialise():
@@ -117,8 +117,9 @@ def _can_serialise() -> bool:
     return True
 
 
-def _traced(tree) -> bool:
-    return any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves(tree))
+def is_traced(*trees) -> bool:
+    """Whether any leaf of the trees is a JAX tracer (under jit, grad, vmap)."""
+    return any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves(trees))
 
 
 def _export_folder() -> Path | None:

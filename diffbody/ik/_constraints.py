@@ -18,9 +18,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._body import Body, Pose, without_names
+from .._body import Body, Pose
 from .._device_arrays import device_array
 from .._kinematics import forward
+from .._programs import is_traced
 from ..contact._distances import closest_pair_gaps, environment_gaps
 from ..contact._environment import Environment
 from ..contact._pairs import sphere_pairs
@@ -86,9 +87,7 @@ def resolve_constraints(body: Body, targets: Sequence, init: Pose) -> Constraint
     c = _HOST[key]
     if not c.sole.shape[0]:
         return c
-    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves((body, c, init))):
-        return _plant_jit(body, c, init)
-    return _plant_host(body, c, init)
+    return (_plant_jit if is_traced(body, c, init) else _plant)(body, c, init)
 
 
 _HOST: dict = {}
@@ -210,35 +209,24 @@ def _host_constraints(body: Body, targets: Sequence) -> Constraints:
 
 def _plant(body: Body, c: Constraints, init: Pose) -> Constraints:
     """The soles' places: their centres in `init` lowered or raised onto their floor, and
-    the support polygon's candidate edges."""
+    the support polygon's candidate edges. With concrete inputs, from the compiled `forward`
+    that every pose of the body structure shares and the rest in NumPy (a program of its own
+    would compile for set-up only; docs/design.md, section 9, "Host set-up")."""
+    traced = is_traced(body, c, init)
+    xp = jnp if traced else np
     k = forward(body, init)
-    idx = jnp.asarray(c.spheres)[c.sole]
-    center = k.sphere_centers[idx].at[:, 2].set(c.sole_height + body.sphere_radii[idx])
-    normals, offsets, edge = support_edges(center[:, :2])
+    idx = xp.asarray(c.spheres)[xp.asarray(c.sole)]
+    z = xp.asarray(c.sole_height) + xp.asarray(body.sphere_radii)[idx]
+    center = xp.concatenate([xp.asarray(k.sphere_centers)[idx, :2], z[:, None]], axis=1)
+    planted = (center, *support_edges(center[:, :2]))
     return eqx.tree_at(
         lambda c: (c.sole_center, c.edge_normal, c.edge_offset, c.edge),
         c,
-        (center, normals, offsets, edge),
+        planted if traced else tuple(jax.device_put(a) for a in planted),
     )
 
 
-_plant_jit = eqx.filter_jit(_plant)
-
-
-def _plant_host(body: Body, c: Constraints, init: Pose) -> Constraints:
-    """`_plant` with concrete inputs: the compiled `forward` that every pose of the body
-    structure shares, the rest in NumPy (a program of its own would compile for set-up only;
-    docs/design.md, section 9, "Host set-up")."""
-    k = forward(without_names(body), init)
-    idx = np.asarray(c.spheres)[np.asarray(c.sole)]
-    center = np.asarray(k.sphere_centers)[idx]
-    center[:, 2] = np.asarray(c.sole_height) + np.asarray(body.sphere_radii)[idx]
-    normals, offsets, edge = support_edges(center[:, :2])
-    return eqx.tree_at(
-        lambda c: (c.sole_center, c.edge_normal, c.edge_offset, c.edge),
-        c,
-        tuple(jax.device_put(a) for a in (center, normals, offsets, edge)),
-    )
+_plant_jit = eqx.filter_jit(_plant)  # traced: one program, not op by op under jax.grad
 
 
 # The margin of a segment and shape that no target pairs: its row never binds.

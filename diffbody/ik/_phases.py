@@ -25,7 +25,7 @@ from jaxtyping import Array, ArrayLike
 
 from .._body import Body, Pose
 from .._kinematics import Links, forward
-from .._programs import compiled
+from .._programs import compiled, is_traced
 from .._spine import spine_angles
 from ._attempt import (
     Attempt,
@@ -45,11 +45,6 @@ from ._unknowns import Layout, make_layout, path_to_top, point_segment
 def is_none(x) -> bool:
     """Whether x is None: the `is_leaf` that lets `eqx.tree_at` fill an empty field."""
     return x is None
-
-
-def is_traced(*trees) -> bool:
-    """Whether any leaf of the trees is a JAX tracer (under jit, grad, vmap)."""
-    return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(trees))
 
 
 # --- the phases -------------------------------------------------------------------------

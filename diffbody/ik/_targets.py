@@ -14,6 +14,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._body import Body, Pose
 from .._device_arrays import device_array
 from .._kinematics import forward
+from .._programs import is_traced
 from ..contact._environment import Environment
 from ..contact._support import sole_spheres
 from ._constraints import FEET, Constraints
@@ -244,22 +245,18 @@ def mask_invalid(targets: TargetSet) -> tuple[TargetSet, Array, Array]:
     return safe, ok_p, ok_a
 
 
-def _floor(body: Body, soles: Array, init: Pose) -> Array:
-    """The lowest point of the sole spheres in `init` (m)."""
+def _floor(body: Body, soles: Array | np.ndarray, init: Pose) -> Array | float:
+    """The lowest point of the sole spheres in `init` (m). With concrete inputs, from the
+    compiled `forward` that every pose of the body structure shares and the rest in NumPy
+    (docs/design.md, section 9, "Host set-up")."""
     k = forward(body, init)
-    return jnp.min(k.sphere_centers[soles, 2] - k.sphere_radii[soles])
-
-
-_floor_jit = eqx.filter_jit(_floor)
-
-
-def _floor_host(body: Body, soles: np.ndarray, init: Pose) -> float:
-    """`_floor` with concrete inputs: the compiled `forward` that every pose of the body
-    structure shares, the rest in NumPy (a program of its own would compile for set-up only;
-    docs/design.md, section 9, "Host set-up")."""
-    k = forward(body, init)
+    if is_traced(body, init):
+        return jnp.min(k.sphere_centers[soles, 2] - k.sphere_radii[soles])
     centers, radii = np.asarray(k.sphere_centers), np.asarray(k.sphere_radii)
     return float(np.min(centers[soles, 2] - radii[soles]))
+
+
+_floor_jit = eqx.filter_jit(_floor)  # traced: one program, not op by op under jax.grad
 
 
 def standing(body: Body, init: Pose, height: float | None = None) -> list:
@@ -270,10 +267,7 @@ def standing(body: Body, init: Pose, height: float | None = None) -> list:
         return []
     if height is None:
         soles = sole_spheres(body, FEET)
-        if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves((body, init))):
-            height = _floor_jit(body, soles, init)
-        else:
-            height = _floor_host(body, soles, init)
+        height = (_floor_jit if is_traced(body, init) else _floor)(body, soles, init)
     return [
         Target.on_floor(FEET, height=height),
         Target.balance(),

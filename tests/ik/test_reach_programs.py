@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import diffbody as db
+from diffbody import _programs
 from diffbody.ik._attempt import ROUND_STEPS, solve_free
 from diffbody.ik._phases import phase_layouts
 from diffbody.ik._reach import constrained_targets
@@ -84,11 +85,15 @@ class _Compiles(logging.Handler):
             self.names.append(message[len("Compiling jit(") :].split(")")[0])
 
 
-def test_a_standing_solve_compiles_each_phase_once(male50):
+def test_a_standing_solve_compiles_each_phase_once(male50, monkeypatch):
     """A far reach with the right hand (no other test's effector): the limbs' round and the
     trunk's, each compiled once, although every round after the first starts from the last
     one's answer (a device array, where the first round's is a host array); and `forward`,
     compiled for the rest pose, not again for the trunk's start (a solve's answer)."""
+    # As a new process: whatever an earlier test in this worker compiled or loaded, gone.
+    jax.clear_caches()
+    monkeypatch.setattr(_programs, "_LOADED", {})
+    monkeypatch.setattr(_programs, "_SEEN", {})
     db.forward(male50, male50.rest_pose())
     handler = _Compiles()
     logger = logging.getLogger("jax")
