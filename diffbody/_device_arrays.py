@@ -20,3 +20,11 @@ def device_array(values, dtype=float) -> Array:
     `int` its default integer type, `bool` bool; as `jnp.asarray(values, dtype)` gives, with
     no program compiled. The values must be concrete (no tracers)."""
     return jax.device_put(np.asarray(values, dtype=jnp.result_type(dtype)))
+
+
+def take(table: np.ndarray, index) -> np.ndarray | np.generic | Array:
+    """table[index] of a static host table: on the host for host indices (a constant in a
+    traced program), a gather for traced ones (the indices are data)."""
+    if isinstance(index, jax.Array):
+        return jnp.asarray(table)[index]
+    return np.asarray(table)[np.asarray(index, int)]

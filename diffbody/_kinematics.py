@@ -16,6 +16,7 @@ from jaxtyping import Array, Float
 
 from ._body import PHI, TAU, THETA, Body, Pose, without_names
 from ._chain import Chain, make_chain, walk
+from ._device_arrays import take
 from ._orientation import (
     LIMBS,
     azimuth_polar_to_vector,
@@ -84,10 +85,11 @@ def socket_frames(
 KINDS: tuple[str, ...] = ("swing",) + LIMBS  # socket-frame kinds, coded by position
 
 
-def table_codes(body: Body, idx: np.ndarray) -> np.ndarray:
+def table_codes(body: Body, idx: np.ndarray | Array) -> np.ndarray | Array:
     """(k,) the limb table of each of segments `idx` as an index into LIMBS, -1 for the
-    swing default (static)."""
-    return np.asarray([KINDS.index(body.standard_kind[i]) - 1 for i in idx], int).reshape(-1)
+    swing default (on the host for host indices, a gather for traced ones)."""
+    table = np.asarray([KINDS.index(kind) - 1 for kind in body.standard_kind], int)
+    return take(table, idx).reshape(-1)
 
 
 def socket_frame_of_kind(
@@ -132,7 +134,7 @@ def exp_swing(w: Float[Array, "*b 2"]) -> Float[Array, "*b 3 3"]:
 
 
 def socket_frames_from_swing(
-    body: Body, swing: Float[Array, "k 2"], idx: np.ndarray | None = None
+    body: Body, swing: Float[Array, "k 2"], idx: np.ndarray | Array | None = None
 ) -> Float[Array, "k 3 3"]:
     """Base frames in their sockets from swing vectors, without passing through (theta, phi),
     of segments `idx` (all when None): smooth at the poles of the sockets, where hanging
@@ -141,22 +143,25 @@ def socket_frames_from_swing(
     For the swing default the frame is R_rest exp(w). A limb with a table turns that frame
     about its own Z by the table's twist relative to it, read off at the same direction.
     """
-    idx = np.arange(body.n_segments) if idx is None else np.asarray(idx)
+    if not isinstance(idx, jax.Array):
+        idx = np.arange(body.n_segments) if idx is None else np.asarray(idx)
     R = matmul3(body.R_socket_rest[idx], exp_swing(swing))
     return twist_about_z(R, _table_twists(body, idx, R))
 
 
-def _table_twists(body: Body, idx: np.ndarray, R: Array) -> Array:
+def _table_twists(body: Body, idx: np.ndarray | Array, R: Array) -> Array:
     """(k,) the twist about Z that turns frames R (k, 3, 3) of segments `idx` into their
     limb tables' frames at the same direction; 0 for the swing default."""
     code = table_codes(body, idx)
-    if np.all(code < 0):
+    if isinstance(code, np.ndarray) and np.all(code < 0):
         return jnp.zeros(R.shape[:1], R.dtype)
     t, _ = _relative_table_twist(R, code)
     return jnp.where(code >= 0, t, 0.0)
 
 
-def _relative_table_twist(R: Array, code: np.ndarray) -> tuple[Array, Callable[[Array], Array]]:
+def _relative_table_twist(
+    R: Array, code: np.ndarray | Array
+) -> tuple[Array, Callable[[Array], Array]]:
     """For frames R (k, 3, 3) and limb codes (k,) into LIMBS (the swing default's any): the
     twist t about Z with R Rz(t) the limb's table frame S at R's Z axis d, and t's rate as
     a function of R's body rates omega (..., k, 3).
@@ -213,22 +218,23 @@ def socket_rates_from_swing(
 
 
 def place_on_segments(
-    body: Body, seg: np.ndarray, local: Array, z: Array, R_base: Array, tau: Array
+    body: Body, seg: np.ndarray | Array, local: Array, z: Array, R_base: Array, tau: Array
 ) -> Array:
-    """Local vectors (k, 3) on segments `seg` (k,), at heights z, turned by their share of
-    the twist tau, in the world (R_base: the segments' untwisted world frames)."""
+    """Local vectors (k, 3) on segments `seg` (k,; host or traced), at heights z, turned
+    by their share of the twist tau, in the world (R_base: the segments' untwisted world
+    frames)."""
     turned = rotate_about_z(local, tau * twist_fraction(z, body.lengths[seg]))
     return matvec3(R_base, turned)
 
 
 def feature_points(
-    body: Body, f: np.ndarray, R_base: Array, p_prox: Array, tau: Array
+    body: Body, f: np.ndarray | Array, R_base: Array, p_prox: Array, tau: Array
 ) -> tuple[Float[Array, "k 3"], Float[Array, "k 3"]]:
     """World points and normals of features `f` (k,), given their segments' untwisted world
     frames (k, 3, 3), proximal joints (k, 3) and twists (k,). Computed from the features' own
     spheres only, so a reach that needs one feature never builds the others."""
-    f_sph = np.asarray(body.feature_sphere, dtype=int)[f]
-    seg = np.asarray(body.sphere_segment, dtype=int)[f_sph]
+    f_sph = take(np.asarray(body.feature_sphere, int), f)
+    seg = take(np.asarray(body.sphere_segment, int), f_sph)
     origins = body.sphere_origins[f_sph]
     normals = place_on_segments(body, seg, body.feature_directions[f], origins[:, 2], R_base, tau)
     centers = p_prox + place_on_segments(body, seg, origins, origins[:, 2], R_base, tau)

@@ -27,6 +27,7 @@ from ._limb_start import limb_start
 from ._problem import Problem, make_problem
 from ._starts import nth_start
 from ._targets import TargetSet, mask_invalid
+from ._tree import Plan
 from ._unknowns import Layout
 
 # Steps per round. From the closed-form limb start, 95 % of the left arm's palm targets
@@ -113,7 +114,11 @@ def start_vector(
     `_starts`."""
     first = limb_start(body, layout, targets, problem) if closed_form else problem.x0
     n_trunk = (3 if layout.spine else 0) + (6 if layout.root else 0)
-    return nth_start(first, problem.x0, start, n_trunk)
+    plan = problem.plan
+    if plan is None:
+        return nth_start(first, problem.x0, start, n_trunk)
+    first = jnp.where(plan.closed, first, problem.x0)
+    return nth_start(first, problem.x0, start, n_trunk, plan.free)
 
 
 def solve_free(
@@ -151,7 +156,8 @@ def solve_free(
     if not layout.n_free:
         return x0, jnp.asarray(0), jnp.asarray(True)
     n_rows = jax.eval_shape(problem.residuals, x0, safe).shape[0]
-    n_constraint_rows = n_rows - layout.n_free - 3 * (len(layout.points) + len(layout.axis_slot))
+    n_targets = safe.point_weight.shape[0] + safe.axis_weight.shape[0]
+    n_constraint_rows = n_rows - layout.n_free - 3 * n_targets
     bounds = _close_enough(safe, tol_position, tol_angle, n_constraint_rows)
     cap = jnp.asarray(max_steps if cap is None else cap)
     args = (problem, safe, StopAt(bounds, cap))
@@ -201,12 +207,15 @@ def attempt_round(
     tol_position: Float[Array, ""],
     tol_angle: Float[Array, ""],
     closed_form: bool,
+    plan: Plan | None = None,
 ) -> tuple[Float[Array, " n_free"], Bool[Array, ""], Attempt]:
     """One round (`solve_free`) of at most `cap` <= `ROUND_STEPS` steps (data), assessed
     (no derivatives): the free vector to go on from, whether the solve has ended, and the
-    attempt (its steps: this round's). The problem is built once and shared."""
+    attempt (its steps: this round's). The problem is built once and shared. `plan`: the
+    whole tree's (`_tree`, with `tree_layout`): then the plan says whether the first start
+    is the limb start (`closed_form` True)."""
     tols = (tol_position, tol_angle)
-    problem = make_problem(no_gradient(body), layout, no_gradient(init))
+    problem = make_problem(no_gradient(body), layout, no_gradient(init), no_gradient(plan))
     x, steps, done = solve_free(
         body,
         layout,

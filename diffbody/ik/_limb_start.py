@@ -35,6 +35,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._body import Body
+from .._device_arrays import take
 from .._kinematics import feature_points, socket_frames_from_swing
 from .._rotations import exp_rotvec, safe_norm, swing_rotation
 from ._problem import Problem
@@ -97,6 +98,8 @@ def limb_start(
     """The free vector of the closed-form start: `problem.x0` (the problem's start) with every
     limb of `limbs` posed toward its point target (one whose weight is zero keeps the start).
     Not differentiated (a start)."""
+    if problem.plan is not None:
+        return _planned_limb_start(body, targets, problem)
     found = limbs(body, layout, targets.axis_segment)
     x = problem.x0
     if not found:
@@ -104,7 +107,10 @@ def limb_start(
     links, tau = problem.start, problem.tau_start
     for limb in found:
         w_hinge = problem.swing0[layout.chain.position(limb.hinge)]
-        w, twist, flexion = _pose_limb(body, links, tau, w_hinge, limb, targets.point_xyz[limb.row])
+        target = targets.point_xyz[limb.row]
+        w, twist, flexion = _pose_limb(
+            body, links, tau, w_hinge, limb.upper, limb.hinge, limb.effector, target
+        )
         entries = list(limb.x_upper[:2]) + [limb.x_hinge]
         values = [w[0], w[1], flexion]
         if limb.x_upper[2] >= 0:
@@ -117,14 +123,35 @@ def limb_start(
     return x
 
 
-def _pose_limb(body: Body, links, tau: Array, w_hinge: Array, limb: Limb, target: Array):
+def _planned_limb_start(body: Body, targets: TargetSet, problem: Problem) -> Array:
+    """`limb_start` on the whole tree's problem: its plan's limbs (data), all at once."""
+    plan, links, tau = problem.plan, problem.start, problem.tau_start
+    position = np.asarray(problem.layout.read_slot, int)  # each segment's chain slot
+
+    def one(row, effector, upper, hinge):
+        w_hinge = problem.swing0[take(position, hinge)]
+        target = targets.point_xyz[row]
+        w, twist, flexion = _pose_limb(body, links, tau, w_hinge, upper, hinge, effector, target)
+        return jnp.stack([w[0], w[1], flexion, twist])
+
+    values = jax.vmap(one)(plan.limb_row, plan.limb_effector, plan.limb_upper, plan.limb_hinge)
+    k = plan.limb_entries  # (L, 4): upper swing_x, swing_y, hinge flexion, upper twist
+    safe = jnp.maximum(k, 0)
+    u = unsquash(values, problem.lo[safe], problem.hi[safe])
+    use = plan.limb_use & (targets.point_weight[plan.limb_row] > 0)
+    n = problem.x0.shape[0]
+    at = jnp.where(use[:, None] & (k >= 0), k, n)  # n: dropped
+    return problem.x0.at[at.ravel()].set(u.ravel(), mode="drop")
+
+
+def _pose_limb(body: Body, links, tau: Array, w_hinge: Array, upper, hinge, effector, target):
     """The upper segment's swing vector (2,) and twist, and the hinge's flexion (its
     swing_y), that put the effector at `target` (as near as the limits allow); `w_hinge`:
-    the hinge's swing vector in the start."""
-    upper, hinge = limb.upper, limb.hinge
+    the hinge's swing vector in the start. The segments and the effector (into [joints,
+    features]) are ints, or traced (the whole tree's plan)."""
     S = links.p_proximal[upper]
     E = links.p_proximal[hinge]
-    P = _effector(body, links, tau, limb.effector)
+    P = _effector(body, links, tau, effector)
     # 1. The flexion: |e + Rot(a, delta) r| = |target - S|.
     a = links.R_base[hinge][:, 1]
     e, r = E - S, P - E
@@ -153,13 +180,13 @@ def _pose_limb(body: Body, links, tau: Array, w_hinge: Array, limb: Limb, target
     psi = jnp.asarray(SWIVELS, S.dtype)
     Q = exp_rotvec(psi[:, None] * line) @ (R_turn @ links.R_twisted[upper])
     # 3. The frames in their socket as swing vectors and twists.
-    parent = int(body.parent[upper])
+    parent = take(np.asarray(body.parent, int), upper)
     R_socket = links.R_twisted[parent] @ body.R_parent_socket[upper]
     L = R_socket.T @ Q
     d = jnp.einsum("ji,kj->ki", body.R_socket_rest[upper], L[:, :, 2])
     w = jax.vmap(_swing_of_direction)(d)
     k = len(SWIVELS)
-    B_w = socket_frames_from_swing(body, w, np.full(k, upper))
+    B_w = socket_frames_from_swing(body, w, _repeated(upper, k))
     M = jnp.einsum("kji,kjl->kil", B_w, L)
     twist = jnp.arctan2(M[:, 1, 0], M[:, 0, 0])
     # The first swivel within the limits, else the one least outside them.
@@ -191,18 +218,33 @@ def _outside(v: Array, lo: Array, hi: Array) -> Array:
     return jnp.maximum(lo - v, 0.0) + jnp.maximum(v - hi, 0.0)
 
 
-def _effector(body: Body, links, tau: Array, index: int) -> Array:
-    """The start's world position of a joint or feature effector."""
-    if index < body.n_joints:
-        return links.p_distal[index - 1]
-    f = np.asarray([index - body.n_joints])
-    seg = int(point_segment(body, index))
+def _repeated(index, k: int):
+    """(k,) copies of an index, host or traced."""
+    return jnp.full(k, index) if isinstance(index, jax.Array) else np.full(k, index)
+
+
+def _effector(body: Body, links, tau: Array, index) -> Array:
+    """The start's world position of a joint or feature effector (`index` into [joints,
+    features]; an int, or traced: then both are placed and the effector's kept)."""
+    n_j, n_f = body.n_joints, len(body.feature_names)
+    if not isinstance(index, jax.Array):
+        if index < n_j:
+            return links.p_distal[index - 1]
+        seg = int(point_segment(body, index))
+        return _feature(body, links, tau, np.asarray([index - n_j]), seg)
+    joint = links.p_distal[jnp.clip(index - 1, 0, body.n_segments - 1)]
+    if not n_f:
+        return joint
+    f = jnp.clip(index - n_j, 0, n_f - 1)
+    sph = take(np.asarray(body.feature_sphere, int), f)
+    seg = take(np.asarray(body.sphere_segment, int), sph)
+    return jnp.where(index < n_j, joint, _feature(body, links, tau, f[None], seg))
+
+
+def _feature(body: Body, links, tau: Array, f, seg) -> Array:
+    """The start's world position of feature f (1,) on segment seg."""
     p, _ = feature_points(
-        body,
-        f,
-        links.R_base[seg][None],
-        links.p_proximal[seg][None],
-        tau[seg][None],
+        body, f, links.R_base[seg][None], links.p_proximal[seg][None], tau[seg][None]
     )
     return p[0]
 

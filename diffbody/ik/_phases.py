@@ -28,7 +28,6 @@ from .._kinematics import Links, forward
 from .._programs import compiled, is_traced
 from .._spine import spine_angles
 from ._attempt import (
-    Attempt,
     assess,
     attempt_round,
     better,
@@ -37,8 +36,10 @@ from ._attempt import (
     round_caps,
     solve_free,
 )
-from ._problem import reach_bound
+from ._plans import fits_tree, make_plan
+from ._problem import stiffness_of
 from ._targets import TargetSet
+from ._tree import padded_targets, tree_layout
 from ._unknowns import Layout, make_layout, path_to_top, point_segment
 
 
@@ -115,6 +116,53 @@ def _phase_layouts(body, phase_targets, spine, free_root, segments, stand) -> li
     if limbs.n_free == 0 or limbs.n_free == full.n_free:
         return [full]
     return [limbs, full]
+
+
+def _own_extra(body: Body, index: int) -> float:
+    """How far a feature effector can lie beyond its segment's distal joint (0 for a
+    joint): its sphere's farthest point from the proximal joint, less the length."""
+    n_j = body.n_joints
+    if index < n_j:
+        return 0.0
+    sph = body.feature_sphere[index - n_j]
+    origin, radius = (np.asarray(a)[sph] for a in (body.sphere_origins, body.sphere_radii))
+    seg = body.sphere_segment[sph]
+    return max(float(np.linalg.norm(origin) + radius) - float(np.asarray(body.lengths)[seg]), 0.0)
+
+
+def reach_bound(body: Body, layout: Layout, links: Links) -> tuple[np.ndarray, np.ndarray]:
+    """Per point target, the fixed point its chain hangs from (n_p, 3; start links, global
+    order) and the farthest its effector can be from it (n_p,): the sum of the live
+    segments' lengths on its path, the effector's own segment counted to the effector. inf
+    where the root is free or the whole tree moves (no fixed point); standing, from the left
+    ankle, the leg counted too."""
+    n_j = body.n_joints
+    lengths = np.asarray(body.lengths)
+    live = set(layout.chain.segments)
+    anchor, bound = [], []
+    for index in layout.points:
+        seg = point_segment(body, index)
+        path = [s for s in path_to_top(body, seg) if s in live]
+        if layout.standing and not layout.full and path:
+            # Standing, the chain hangs from a planted foot: from its ankle, up the leg.
+            foot = body.segment_index("left_foot")
+            leg = path_to_top(body, foot)[1:]
+            anchor.append(np.asarray(links.p_proximal[foot]))
+            bound.append(sum(lengths[s] for s in set(path + leg)) + _own_extra(body, index))
+            continue
+        if layout.root or layout.full or not path:
+            anchor.append(np.zeros(3))
+            bound.append(np.inf if path else 0.0)
+            continue
+        top = path[-1]
+        anchor.append(np.asarray(links.p_proximal[top]))
+        own = lengths[seg]
+        if index >= n_j:
+            sph = body.feature_sphere[index - n_j]
+            origin, radius = (np.asarray(a)[sph] for a in (body.sphere_origins, body.sphere_radii))
+            own = float(np.linalg.norm(origin) + radius)
+        bound.append(sum(lengths[s] for s in path if s != seg) + (own if seg in live else 0.0))
+    return np.asarray(anchor).reshape(-1, 3), np.asarray(bound)
 
 
 def host_links(body: Body, init: Pose) -> Links:
@@ -253,14 +301,17 @@ def _select(take: Array, a, b):
     return jax.tree.map(lambda x, y: jnp.where(take, x, y), a, b)
 
 
-def run_start(body, layout, init, ts, k: int, caps: list[int], tols, closed_form) -> Attempt:
+def run_start(body, layout, init, ts, k: int, caps: list[int], tols, closed_form, plan=None):
     """Start k of a phase, in rounds of `caps` steps until the solver stops; its attempt
-    counts the steps of every round."""
-    x = np.zeros(layout.n_free, tols[0].dtype)
+    counts the steps of every round. With the phase's `plan` (`phase_plans`) the rounds run
+    on the whole tree's program (`ts` then padded, `padded_targets`)."""
+    lay = layout if plan is None else tree_layout(body)
+    closed = closed_form if plan is None else True  # the plan says (data)
+    x = np.zeros(lay.n_free, tols[0].dtype)
     spent, fresh = 0, True
     for cap in caps:
         k_, fresh_, cap_ = np.int32(k), np.asarray(fresh), np.asarray(cap, np.int32)
-        x, done, a = _round_jit(body, layout, init, ts, x, k_, fresh_, cap_, *tols, closed_form)
+        x, done, a = _round_jit(body, lay, init, ts, x, k_, fresh_, cap_, *tols, closed, plan)
         # Back on the host, as the first round's: a device array (committed to its device)
         # would compile the same round again.
         x = np.asarray(x)
@@ -268,7 +319,25 @@ def run_start(body, layout, init, ts, k: int, caps: list[int], tols, closed_form
         fresh = False
         if bool(done):
             break
+    if plan is not None and not layout.spine:
+        # The tree always names a spine target; the phase left the spine as it started.
+        a = eqx.tree_at(lambda a: a.pose.spine_target, a, init.spine_target, is_leaf=is_none)
     return eqx.tree_at(lambda a: a.steps, a, np.asarray(spent))
+
+
+def phase_plans(body: Body, layouts: list[Layout], phase_targets) -> list | None:
+    """Each phase's plan on the whole tree's program (`_tree`), or None where the solve
+    does not fit it (a re-rooted body, a center-of-gravity target, a vertebra free
+    without the spine): then each phase compiles its own layout."""
+    sets = phase_targets_of(layouts, phase_targets)
+    if not fits_tree(body, sets[0]):
+        return None
+    tree = tree_layout(body)
+    plans = [
+        make_plan(body, tree, lay, ts, closed_form(k, ts), stiffness_of(body, lay))
+        for k, (lay, ts) in enumerate(zip(layouts, sets))
+    ]
+    return None if any(p is None for p in plans) else plans
 
 
 def closed_form(phase: int, ts: TargetSet) -> bool:
@@ -285,10 +354,11 @@ def phase_targets_of(layouts: list[Layout], phase_targets: Sequence[TargetSet]) 
     return list(phase_targets) if len(layouts) == len(phase_targets) else [phase_targets[-1]]
 
 
-def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols):
+def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plans=None):
     """Phases, starts and rounds driven from the host: each runs only if needed. Returns
     the kept `Attempt`, the solver steps over all attempts, and per point target whether it
-    lies beyond the reach bound of the last phase tried."""
+    lies beyond the reach bound of the last phase tried. `plans` (`phase_plans`): run on
+    the whole tree's program (the attempts' errors then padded to the targets' buckets)."""
     best, steps = None, 0
     start_pose = init
     for phase, (layout, ts) in enumerate(zip(layouts, phase_targets_of(layouts, phase_targets))):
@@ -296,8 +366,11 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols):
         beyond, far, caps = phase_plan(body, layouts, phase, start_pose, ts.point_xyz, steps_k)
         if not far.any():
             caps = round_caps(steps_k)
+        plan = None if plans is None else plans[phase]
+        solved = ts if plan is None else padded_targets(ts)
         for k in range(1 if far.any() else starts):
-            a = run_start(body, layout, start_pose, ts, k, caps, tols, closed_form(phase, ts))
+            closed = closed_form(phase, ts)
+            a = run_start(body, layout, start_pose, solved, k, caps, tols, closed, plan)
             steps += int(a.steps)
             if best is None or bool(better(*jax.tree.map(np.asarray, (a, best)))):
                 best = a
@@ -307,10 +380,11 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols):
     return best, steps, beyond
 
 
-def solve_traced(body, layouts, init, phase_targets, starts, max_steps, tols):
+def solve_traced(body, layouts, init, phase_targets, starts, max_steps, tols, plans=None):
     """The same phases with every start side by side (for jax.grad / jit / vmap): each
     phase's solve runs without derivatives, and its answer is differentiated implicitly.
-    Returns what `solve_host` does, with no target flagged as beyond."""
+    Returns what `solve_host` does, with no target flagged as beyond. (Each phase compiles
+    its own layout: `plans` is None here.)"""
     best, steps = None, jnp.asarray(0)
     start_pose = init
     for phase, (layout, ts) in enumerate(zip(layouts, phase_targets_of(layouts, phase_targets))):

@@ -13,8 +13,6 @@ through the JVP; derivatives with respect to the problem itself (a body under
 differentiation) and re-rooted bodies fall back to plain autodiff through the walk.
 """
 
-import functools
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -23,6 +21,7 @@ from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Float
 
 from .._chain import on_paths
+from .._device_arrays import take
 from .._kinematics import (
     exp_swing,
     place_on_segments,
@@ -72,7 +71,13 @@ def spine_frames(problem, spine_target: Array | None) -> list:
     _, w_sp, tw_sp = spine_deviation(b, spine_target)
     k, r = np.asarray(lay.spine, int), np.asarray(lay.spine_rows, int)
     seg = np.asarray(lay.chain.segments, int)[k]
-    return [(k, matmul3(b.R_socket_rest[seg], exp_swing(w_sp[r])), tw_sp[r])]
+    R, tau = matmul3(b.R_socket_rest[seg], exp_swing(w_sp[r])), tw_sp[r]
+    if problem.plan is not None:
+        # The whole tree's problem: the vertebrae the solve does not bend stay as started.
+        bent = problem.plan.vertebrae
+        R = jnp.where(bent[:, None, None], R, problem.R_socket0[k])
+        tau = jnp.where(bent, tau, problem.tau0[k])
+    return [(k, R, tau)]
 
 
 def root_frame(problem, root: Array) -> list:
@@ -95,34 +100,45 @@ def _last_of(m: int, rows: list[np.ndarray]) -> np.ndarray:
 
 
 # --- the points -------------------------------------------------------------------------------
-def walk_points(problem, slots: tuple[int, ...], lengths, offsets, heights, x):
+def walk_points(problem, slots, lengths, offsets, heights, x):
     """World points (k, 3) at `offsets` (k, 3; their segments' cross of axes) on the chain
-    or base slots `slots`, each turned by the share heights / length of its segment's
-    twist, on the problem's body with segment `lengths` (n_seg,); also the walk's links
-    and twists (chain order). One walk (`Problem.links`)."""
+    or base slots `slots` (k,; data), each turned by the share heights / length of its
+    segment's twist, on the problem's body with segment `lengths` (n_seg,); also the walk's
+    links and twists (chain order). One walk (`Problem.links`)."""
+    slots = as_slots(slots)
     body = eqx.tree_at(lambda b: b.lengths, problem.body, lengths)
     links, tau = eqx.tree_at(lambda p: p.body, problem, body).links(x)
     allof = jax.tree.map(lambda c, s: jnp.concatenate([c, s]), links, problem.bases)
     tau_all = jnp.concatenate([tau, problem.tau_bases])
-    slot = np.asarray(slots, int)
     seg = segments_of(problem.layout, slots)
-    local = place_on_segments(body, seg, offsets, heights, allof.R_base[slot], tau_all[slot])
-    return allof.p_proximal[slot] + local, links, tau
+    local = place_on_segments(body, seg, offsets, heights, allof.R_base[slots], tau_all[slots])
+    return allof.p_proximal[slots] + local, links, tau
 
 
-def segments_of(lay: Layout, slots: tuple[int, ...]) -> np.ndarray:
-    """The global segment of each slot (chain or base)."""
+def as_slots(slots) -> np.ndarray | Array:
+    """Slots as an int array (a tuple on the host becomes a NumPy array)."""
+    return slots if isinstance(slots, jax.Array) else np.asarray(slots, np.int32)
+
+
+def slot_table(lay: Layout) -> np.ndarray:
+    """(m + n_bases,) the global segment of each slot (chain, then bases; -1 the world)."""
+    return np.asarray(lay.chain.segments + lay.bases, int)
+
+
+def segments_of(lay: Layout, slots) -> np.ndarray | Array:
+    """The global segment of each slot (chain or base): NumPy for NumPy slots, else a
+    gather in the program."""
+    return take(np.maximum(slot_table(lay), 0), slots)
+
+
+def _ancestry(lay: Layout, slots) -> tuple[np.ndarray | Array, np.ndarray | Array]:
+    """(k, m) masks over the chain: chain segment i on point k's path to the top (itself
+    included), and i being point k's own segment; zero rows for points on bases."""
     m = lay.chain.size
-    return np.asarray([lay.chain.segments[s] if s < m else lay.bases[s - m] for s in slots], int)
-
-
-def _ancestry(lay: Layout, slots: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """(k, m) static masks over the chain: chain segment i on point k's path to the top
-    (itself included), and i being point k's own segment; zero rows for points on bases."""
-    m = lay.chain.size
-    on_path = on_paths(lay.chain.parent_slot, slots)
-    own = on_paths([-1] * m, slots)
-    return on_path, own
+    every = range(m + lay.chain.n_bases)
+    on_path = on_paths(lay.chain.parent_slot, every)
+    own = on_paths([-1] * m, every)
+    return take(on_path, slots), take(own, slots)
 
 
 def _closed_form(problem) -> bool:
@@ -132,9 +148,8 @@ def _closed_form(problem) -> bool:
     return not problem.layout.full or b.root_joint == b.default_root_joint
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
 def tree_points(
-    slots: tuple[int, ...],
+    slots,
     problem,
     lengths: Float[Array, " n_seg"],
     offsets: Float[Array, "k 3"],
@@ -142,9 +157,15 @@ def tree_points(
     x: Float[Array, " n_free"],
 ) -> Float[Array, "k 3"]:
     """World positions (m) of points at `offsets` on the segments of the problem's chain or
-    base `slots`, turned by the share heights / length of their segment's twist, for the
-    free vector x of a `Problem` whose body has segment `lengths`: one walk, with
-    closed-form derivatives (module docstring)."""
+    base `slots` (k ints: a tuple, or an array that may be data), turned by the share
+    heights / length of their segment's twist, for the free vector x of a `Problem` whose
+    body has segment `lengths`: one walk, with closed-form derivatives (module
+    docstring)."""
+    return _tree_points(as_slots(slots), problem, lengths, offsets, heights, x)
+
+
+@jax.custom_jvp
+def _tree_points(slots, problem, lengths, offsets, heights, x):
     return walk_points(problem, slots, lengths, offsets, heights, x)[0]
 
 
@@ -280,20 +301,23 @@ def point_jacobian(problem, slots, x: Array, p: Array, links, frac: Array) -> Ar
     return J + shift
 
 
-def _tree_points_jvp(slots, primals, tangents):
-    problem, lengths, offsets, heights, x = primals
-    d_problem, d_lengths, d_offsets, d_heights, dx = tangents
+def _tree_points_jvp(primals, tangents):
+    slots, problem, lengths, offsets, heights, x = primals
+    _, d_problem, d_lengths, d_offsets, d_heights, dx = tangents
     quiet = all(_zero(t) for t in jax.tree.leaves(d_problem, is_leaf=_zero))
     if not (quiet and _closed_form(problem)):
         # Derivatives with respect to the problem, or a re-rooted body: plain autodiff.
         tangents = jax.tree.map(
-            lambda t, a: jnp.zeros_like(a) if _zero(t) else t, tangents, primals, is_leaf=_zero
+            lambda t, a: jnp.zeros_like(a) if _zero(t) else t,
+            tangents[1:],
+            primals[1:],
+            is_leaf=_zero,
         )
         fn = lambda *a: walk_points(a[0], slots, *a[1:])[0]  # noqa: E731
-        return jax.jvp(fn, primals, tangents)
+        return jax.jvp(fn, primals[1:], tangents)
     p, links, tau = walk_points(problem, slots, lengths, offsets, heights, x)
     lay = problem.layout
-    slot, seg = np.asarray(slots, int), segments_of(lay, slots)
+    slot, seg = slots, segments_of(lay, slots)
     L = lengths[seg]
     frac = twist_fraction(heights, L)
     safe_L = jnp.where(L > 0, L, 1.0)  # a segment of length 0 has no twist share to change
@@ -322,4 +346,4 @@ def _tree_points_jvp(slots, primals, tangents):
     return p, dp
 
 
-tree_points.defjvp(_tree_points_jvp, symbolic_zeros=True)
+_tree_points.defjvp(_tree_points_jvp, symbolic_zeros=True)

@@ -5,6 +5,7 @@ depends on go back to the standard orientation, with every joint where the solve
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array
 
 from .._body import Body, Pose
 from .._kinematics import forward
@@ -49,26 +50,37 @@ def needs_projection(body: Body, layout: Layout) -> bool:
     return bool(moved - set(twists_to_keep(body, layout)))
 
 
-def project_to_standard(body: Body, pose: Pose, keep: tuple[int, ...]) -> Pose:
-    """The pose with every twist outside `keep` (segments, `twists_to_keep`) reset to the
-    standard orientation, joint positions unchanged (the posture from joints); if the reset
-    would break a limit, the pose is returned as it is."""
+def keep_mask(body: Body, layout: Layout) -> np.ndarray:
+    """(n_seg,) `twists_to_keep` as a mask."""
     mask = np.zeros(body.n_segments, bool)
-    mask[list(keep)] = True
+    mask[list(twists_to_keep(body, layout))] = True
+    return mask
+
+
+def project_to_standard(body: Body, pose: Pose, keep: np.ndarray | Array) -> Pose:
+    """The pose with every twist outside `keep` (a mask over the segments, `keep_mask`)
+    reset to the standard orientation, joint positions unchanged (the posture from
+    joints); if the reset would break a limit, the pose is returned as it is."""
     fk = forward(body, pose)
-    deviation = jnp.where(mask, pose.angles[:, 2], 0.0)
+    deviation = jnp.where(keep, pose.angles[:, 2], 0.0)
     W = fk.R_world_twisted[0]  # the whole body's frame is never projected
     standard = pose_from_joints(body, fk.joint_positions, W, deviation).angles
     projected = Pose(
         position=pose.position,
-        angles=jnp.where(mask[:, None], pose.angles, standard),
+        angles=jnp.where(keep[:, None], pose.angles, standard),
         spine_target=pose.spine_target,
     )
     ok = jnp.all(within_limits(body, projected, tol=PROJECTION_TOL))
     return jax.tree.map(lambda a, c: jnp.where(ok, a, c), projected, pose)
 
 
-def finish(body: Body, pose: Pose, keep: tuple[int, ...] | None) -> Pose:
-    """The pose after the post-projection: `project_to_standard` keeping the twists of `keep`,
-    or the pose as it is when `keep` is None (no projection asked for, or none needed)."""
-    return pose if keep is None else project_to_standard(body, pose, keep)
+def finish(body: Body, pose: Pose, keep: np.ndarray | Array | None, project=True) -> Pose:
+    """The pose after the post-projection: `project_to_standard` keeping the twists of the
+    mask `keep`, where `project` (a bool, or data); the pose as it is when `keep` is None
+    (no projection asked for, or none needed)."""
+    if keep is None:
+        return pose
+    projected = project_to_standard(body, pose, keep)
+    if project is True:
+        return projected
+    return jax.tree.map(lambda a, c: jnp.where(project, a, c), projected, pose)

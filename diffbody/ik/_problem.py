@@ -29,7 +29,8 @@ from .._spine import spine_angles
 from ._constraints import WEIGHT, constraint_rows
 from ._points import segments_of, socket_state, tree_points
 from ._targets import TargetSet
-from ._unknowns import Layout, into_cone, path_to_top, point_segment, squash, unsquash
+from ._tree import Plan, effector_rows
+from ._unknowns import Layout, into_cone, squash, unsquash
 
 # The pull toward the start, per unit of the free variables: it settles the redundant
 # directions of a chain without moving reached targets by more than micrometres. The
@@ -70,12 +71,15 @@ class Problem(eqx.Module):
     stiffness: Float[Array, " n_free"]  # the free variables are the unknowns times this
     start: Links  # the start's links of every segment (global order), walked once
     tau_start: Float[Array, " n_seg"]  # the start's twists of every segment
+    plan: Plan | None = None  # the whole tree's: what this solve moves and reaches (`_tree`)
 
     # --- the free vector to the live segments -------------------------------------------
     def state(self, x: Array):
         """Swing vectors (m, 2), twists (m,), spine target (or None) and root placement of
         the free vector, every limit exact (box map, then the radial pull into the cone)."""
         lay, b = self.layout, self.body
+        if self.plan is not None:
+            x = jnp.where(self.plan.free, x, self.x0)
         sx, sy, tw, sp, root = lay.split(x / self.stiffness)
         lo_sx, lo_sy, lo_tw, lo_sp, _ = lay.split(self.lo)
         hi_sx, hi_sy, hi_tw, hi_sp, _ = lay.split(self.hi)
@@ -130,45 +134,56 @@ class Problem(eqx.Module):
         segment's whole twist) and the segment's proximal joint."""
         lay, b = self.layout, self.body
         c = targets.constraints
-        slots, offsets, heights = [], [], []
         cog = b.n_joints + len(b.feature_names)
-        for index, slot in zip(lay.points, lay.point_slot):
-            s, o, h = _effector_point(self, index, slot)
-            slots += s
-            offsets.append(o)
-            heights.append(h)
-        n_a = len(lay.axis_slot)
-        axis_seg = segments_of(lay, lay.axis_slot)
-        slots += list(lay.axis_slot) * 2
-        offsets += [targets.axis_local, jnp.zeros((n_a, 3), x.dtype)]
-        heights += [b.lengths[axis_seg], jnp.zeros(n_a, x.dtype)]
+        slots, offsets, heights = [], [], []
+        if self.plan is None:
+            for index, slot in zip(lay.points, lay.point_slot):
+                s, o, h = _effector_point(self, index, slot)
+                slots.append(np.asarray(s, int))
+                offsets.append(o)
+                heights.append(h)
+            n_a = len(lay.axis_slot)
+            axis_seg = segments_of(lay, lay.axis_slot)
+            slots.append(np.asarray(lay.axis_slot * 2, int))
+            offsets += [targets.axis_local, jnp.zeros((n_a, 3), x.dtype)]
+            heights += [b.lengths[axis_seg], jnp.zeros(n_a, x.dtype)]
+        else:
+            n_a = targets.axis_weight.shape[0]
+            for s, o, h in effector_rows(b, lay, self.plan, targets):
+                slots.append(s)
+                offsets.append(o)
+                heights.append(h)
         n_sph = 0 if c is None else len(c.spheres)
         if n_sph:
             sph = np.asarray(c.spheres, int)
             seg = np.asarray(b.sphere_segment, int)[sph]
-            slots += [lay.read_slot[s] for s in seg]
+            slots.append(np.asarray([lay.read_slot[s] for s in seg], int))
             offsets.append(b.sphere_origins[sph])
             heights.append(b.sphere_origins[sph, 2])
         balance = c is not None and c.balance
         if balance:
-            slots += _whole_tree_slots(self)
+            slots.append(np.asarray(_whole_tree_slots(self), int))
             offsets.append(b.centroids)
             heights.append(b.centroids[:, 2])
-        if not slots:
+        if not sum(len(s) for s in slots):
             empty = jnp.zeros((0, 3), x.dtype)
             return empty, empty, empty, None
         offsets = jnp.concatenate([jnp.asarray(o, x.dtype).reshape(-1, 3) for o in offsets])
         heights = jnp.concatenate([jnp.asarray(h, x.dtype).reshape(-1) for h in heights])
-        q = tree_points(tuple(slots), self, b.lengths, offsets, heights, x)
+        concat = np.concatenate if self.plan is None else jnp.concatenate
+        q = tree_points(concat(slots), self, b.lengths, offsets, heights, x)
         points, at = [], 0
+        if self.plan is not None:
+            at = targets.point_weight.shape[0]
+            points.append(q[:at])
         for index in lay.points:
             if index == cog:
-                points.append(_mass_mean(b, q[at : at + b.n_segments]))
+                points.append(_mass_mean(b, q[at : at + b.n_segments])[None])
                 at += b.n_segments
             else:
-                points.append(q[at])
+                points.append(q[at : at + 1])
                 at += 1
-        p = jnp.stack(points) if points else jnp.zeros((0, 3), x.dtype)
+        p = jnp.concatenate(points) if points else jnp.zeros((0, 3), x.dtype)
         axes = q[at : at + n_a] - q[at + n_a : at + 2 * n_a]
         at += 2 * n_a
         centers = q[at : at + n_sph]
@@ -226,11 +241,15 @@ class Problem(eqx.Module):
             T = angles[:, 2].at[seg[k]].set(tau[k])
             mask = np.zeros(n, bool)
             mask[seg[k]] = True
+            if self.plan is not None:
+                mask = mask & self.plan.moves
             angles = jnp.where(mask[:, None], angles_from_swing(b, W, T), angles)
         position = jnp.asarray(init.position)
         if lay.root:
             R0 = exp_rotvec(root[3:]) @ self.R_socket0[lay.chain.position(0)]
-            angles = angles.at[0].set(angles_of_rotation(R0 @ rot_z(angles[0, 2])))
+            placed = angles.at[0].set(angles_of_rotation(R0 @ rot_z(angles[0, 2])))
+            # The whole tree's problem keeps a root it does not move as it is.
+            angles = placed if self.plan is None else jnp.where(self.plan.free[-1], placed, angles)
             position = position + root[:3]
         if spine_target is None:
             spine_target = init.spine_target
@@ -305,8 +324,9 @@ def start_links(body: Body, init: Pose) -> tuple[Links, Array, Array]:
     return reroot(body, links, position), R_socket_base, tau
 
 
-def make_problem(body: Body, layout: Layout, init: Pose) -> Problem:
-    """Build the fixed part of a solve (traceable: the init and the body may be traced)."""
+def make_problem(body: Body, layout: Layout, init: Pose, plan: Plan | None = None) -> Problem:
+    """Build the fixed part of a solve (traceable: the init and the body may be traced);
+    `plan`: the whole tree's (`_tree`), with `tree_layout`."""
     links, R_socket, tau = start_links(body, init)
     seg = np.asarray(layout.chain.segments, int)
     bases_seg = np.asarray([max(s, 0) for s in layout.bases], int)
@@ -336,7 +356,7 @@ def make_problem(body: Body, layout: Layout, init: Pose) -> Problem:
         zeros = jnp.zeros(6, x0.dtype)
         lo, hi, x0 = (jnp.concatenate([a, zeros]) for a in (lo, hi, x0))
         pull.append(np.full(6, np.sqrt(PULL)))
-    stiffness = stiffness_of(body, layout)
+    stiffness = stiffness_of(body, layout) if plan is None else plan.stiffness
     x0 = x0 * stiffness
     return Problem(
         body=body,
@@ -354,19 +374,8 @@ def make_problem(body: Body, layout: Layout, init: Pose) -> Problem:
         stiffness=jnp.asarray(stiffness, x0.dtype),
         start=links,
         tau_start=tau,
+        plan=plan,
     )
-
-
-def _own_extra(body: Body, index: int) -> float:
-    """How far a feature effector can lie beyond its segment's distal joint (0 for a
-    joint): its sphere's farthest point from the proximal joint, less the length."""
-    n_j = body.n_joints
-    if index < n_j:
-        return 0.0
-    sph = body.feature_sphere[index - n_j]
-    origin, radius = (np.asarray(a)[sph] for a in (body.sphere_origins, body.sphere_radii))
-    seg = body.sphere_segment[sph]
-    return max(float(np.linalg.norm(origin) + radius) - float(body.lengths[seg]), 0.0)
 
 
 def stiffness_of(body: Body, layout: Layout) -> np.ndarray:
@@ -400,38 +409,3 @@ def _below_hip(body: Body, s: int) -> bool:
         s = body.parent[s]
     names = [body.segment_names[p] for p in path]
     return any(n.endswith("_thigh") for n in names[1:])
-
-
-def reach_bound(body: Body, layout: Layout, links: Links) -> tuple[np.ndarray, np.ndarray]:
-    """Per point target, the fixed point its chain hangs from (n_p, 3; start links, global
-    order) and the farthest its effector can be from it (n_p,): the sum of the live
-    segments' lengths on its path, the effector's own segment counted to the effector. inf
-    where the root is free or the whole tree moves (no fixed point); standing, from the left
-    ankle, the leg counted too."""
-    n_j = body.n_joints
-    lengths = np.asarray(body.lengths)
-    live = set(layout.chain.segments)
-    anchor, bound = [], []
-    for index in layout.points:
-        seg = point_segment(body, index)
-        path = [s for s in path_to_top(body, seg) if s in live]
-        if layout.standing and not layout.full and path:
-            # Standing, the chain hangs from a planted foot: from its ankle, up the leg.
-            foot = body.segment_index("left_foot")
-            leg = path_to_top(body, foot)[1:]
-            anchor.append(np.asarray(links.p_proximal[foot]))
-            bound.append(sum(lengths[s] for s in set(path + leg)) + _own_extra(body, index))
-            continue
-        if layout.root or layout.full or not path:
-            anchor.append(np.zeros(3))
-            bound.append(np.inf if path else 0.0)
-            continue
-        top = path[-1]
-        anchor.append(np.asarray(links.p_proximal[top]))
-        own = lengths[seg]
-        if index >= n_j:
-            sph = body.feature_sphere[index - n_j]
-            origin, radius = (np.asarray(a)[sph] for a in (body.sphere_origins, body.sphere_radii))
-            own = float(np.linalg.norm(origin) + radius)
-        bound.append(sum(lengths[s] for s in path if s != seg) + (own if seg in live else 0.0))
-    return np.asarray(anchor).reshape(-1, 3), np.asarray(bound)

@@ -17,6 +17,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._body import Body, Pose
+from .._device_arrays import device_array
 from .._programs import compiled
 from ._attempt import Attempt
 from ._constraints import (
@@ -26,10 +27,11 @@ from ._constraints import (
     resolve_constraints,
     target_key,
 )
-from ._phases import is_none, is_traced, phase_layouts, solve_host, solve_traced
-from ._post_projection import finish, needs_projection, twists_to_keep
+from ._phases import is_none, is_traced, phase_layouts, phase_plans, solve_host, solve_traced
+from ._post_projection import finish, keep_mask, needs_projection
 from ._targets import Target, TargetSet, flatten_targets, resolve_targets
 from ._targets import standing as standing_targets
+from ._tree import padded_targets, targets_rows
 
 
 class ReachStatus(enum.IntEnum):
@@ -164,16 +166,32 @@ def solve_reach(
     )
     dtype = jnp.result_type(float)
     tols = (_scalar(tol_position, dtype), _scalar(tol_angle, dtype))
-    run = solve_traced if is_traced(body, init, phase_targets) else solve_host
-    best, steps, beyond = run(body, layouts, init, phase_targets, int(starts), int(max_steps), tols)
-    final = layouts[-1]
-    keep = (
-        twists_to_keep(body, final)
-        if (standard_orientation and needs_projection(body, final))
-        else None
-    )
-    ts = phase_targets[-1]
-    return _conclude_jit(body, keep, best, ts, tuple(order), beyond, steps, tols)
+    final, ts = layouts[-1], phase_targets[-1]
+    project = bool(standard_orientation and needs_projection(body, final))
+    settings = (int(starts), int(max_steps), tols)
+    traced = is_traced(body, init, phase_targets)
+    plans = None if traced else phase_plans(body, layouts, phase_targets)
+    run = solve_traced if traced else solve_host
+    best, steps, beyond = run(body, layouts, init, phase_targets, *settings, plans)
+    back = np.argsort(order)
+    if not traced:
+        # On the host, every leaf alike: committed device arrays beside host ones would
+        # key the conclusion's program differently from call to call, and a Python int
+        # would be a static argument (a program per step count).
+        best, steps = jax.device_get(best), np.asarray(steps, np.int32)
+    if plans is None:
+        keep = keep_mask(body, final) if project else None
+        return _conclude_jit(body, keep, True, best, ts, back, beyond, steps, tols, False)
+    # The whole tree's conclusion: one program for every effector set of a bucket (the
+    # projection's twists and the targets' order as data), cut to the targets on the host.
+    padded = padded_targets(ts)
+    n_p, P, A = len(ts.point_index), *targets_rows(ts)
+    back = np.where(back < n_p, back, back - n_p + P)
+    back = np.concatenate([back, np.setdiff1d(np.arange(P + A), back)])
+    beyond = np.concatenate([beyond, np.zeros(P - n_p, bool)])
+    keep, flag = keep_mask(body, final), device_array(project, bool)
+    args = (best, padded, back, beyond, steps, tols, True)
+    return _cut(_conclude_jit(body, keep, flag, *args), len(order))
 
 
 def constrained_targets(
@@ -212,9 +230,12 @@ def _with(ts: TargetSet, c) -> TargetSet:
     return eqx.tree_at(lambda t: t.constraints, ts, c, is_leaf=is_none)
 
 
-def _result(body, pose, best: Attempt, ts: TargetSet, order, beyond, steps, tols) -> ReachResult:
-    """The verdicts of the kept attempt, back in the order the targets were given (`order`:
-    their places in `ts`, points first)."""
+def _result(
+    body, pose, best: Attempt, ts: TargetSet, back, beyond, steps, tols, padded=False
+) -> ReachResult:
+    """The verdicts of the kept attempt, back in the order the targets were given (`back`:
+    each given target's place in `ts`, points first). `padded` (`_tree.padded_targets`):
+    `back` then goes on with the pad rows, cut off by the caller."""
     valid = jnp.concatenate(
         [jnp.all(jnp.isfinite(ts.point_xyz), -1), jnp.all(jnp.isfinite(ts.axis_direction), -1)]
     )
@@ -223,9 +244,12 @@ def _result(body, pose, best: Attempt, ts: TargetSet, order, beyond, steps, tols
     beyond = jnp.concatenate([jnp.asarray(beyond, bool), jnp.zeros(n_a, bool)])
     tol_position, tol_angle = tols
     reached = valid & jnp.concatenate([best.err_p <= tol_position, best.err_a <= tol_angle])
-    back = np.argsort(order)
     c = ts.constraints
     violation = pose_violations(body, pose, c).astype(residuals.dtype)
+    if padded:
+        # The pad rows (not finite by construction; a given target is finite on this path)
+        # take no part in the status.
+        reached, valid = reached | ~valid, jnp.ones_like(valid)
     status = reach_status(reached, valid, beyond, violation <= tol_position)
     return ReachResult(
         pose=pose,
@@ -240,9 +264,22 @@ def _result(body, pose, best: Attempt, ts: TargetSet, order, beyond, steps, tols
     )
 
 
-def _conclude(body, keep, best: Attempt, ts, order, beyond, steps, tols) -> ReachResult:
-    """The post-projection (when `keep` is not None) and the result, in one compiled call."""
-    return _result(body, finish(body, best.pose, keep), best, ts, order, beyond, steps, tols)
+def _conclude(body, keep, project, best, ts, back, beyond, steps, tols, padded) -> ReachResult:
+    """The post-projection (keeping the twists of the mask `keep`, where `project`; none
+    when `keep` is None) and the result (`_result`), in one compiled call."""
+    pose = finish(body, best.pose, keep, project)
+    return _result(body, pose, best, ts, back, beyond, steps, tols, padded)
+
+
+def _cut(result: ReachResult, n: int) -> ReachResult:
+    """The result's per-target arrays cut to the first n (the padded rows dropped on the
+    host and put back: no program compiled)."""
+    cut = lambda a: jax.device_put(np.asarray(a)[:n])  # noqa: E731
+    return eqx.tree_at(
+        lambda r: (r.reached, r.residuals, r.valid, r.beyond),
+        result,
+        tuple(cut(a) for a in (result.reached, result.residuals, result.valid, result.beyond)),
+    )
 
 
 _conclude_jit = compiled(_conclude)

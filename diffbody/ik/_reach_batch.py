@@ -23,7 +23,7 @@ from ._attempt import Attempt, attempt_round, better, phase_steps, round_caps
 from ._batch_run import BatchRun, stream_reach_batch
 from ._constraints import is_constraint, pose_violations
 from ._phases import closed_form, is_none, phase_layouts, phase_plan, phase_targets_of
-from ._post_projection import finish, needs_projection, twists_to_keep
+from ._post_projection import finish, keep_mask, needs_projection
 from ._reach import ReachResult, check_settings, constrained_targets, reach_status
 from ._targets import Target, TargetSet, resolve_targets
 from ._unknowns import Layout
@@ -383,7 +383,7 @@ def _with_spine_target(s: _Setup, best: Attempt) -> Attempt:
 def _project(s: _Setup, best: Attempt) -> Attempt:
     """The rows' poses after the post-projection, when the final phase needs one."""
     final = s.layouts[-1]
-    keep = twists_to_keep(s.body, final) if needs_projection(s.body, final) else None
+    keep = keep_mask(s.body, final) if needs_projection(s.body, final) else None
     if keep is None:
         return best
     poses = _over_poses(s, lambda p: _finish_rows_jit(s.body, p, keep), best.pose, "project")

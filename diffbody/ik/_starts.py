@@ -14,7 +14,7 @@ import functools
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 SPREAD = 1.3  # the starts' range of the free variables (sin map: +-96 % of each range)
 
@@ -56,14 +56,22 @@ MAX_STARTS = 64  # starts beyond this many repeat the table (each is tried at mo
 
 
 def nth_start(
-    first: Float[Array, " n"], x0: Float[Array, " n"], k: Int[Array, ""], n_trunk: int
+    first: Float[Array, " n"],
+    x0: Float[Array, " n"],
+    k: Int[Array, ""],
+    n_trunk: int,
+    free: Bool[Array, " n"] | None = None,
 ) -> Float[Array, " n"]:
     """The free vector of start k (traced): `first` for k = 0, else the k-th Halton point
     (k modulo `MAX_STARTS`) with the trunk (the last `n_trunk` entries: spine target, root
-    placement) kept at x0, the start pose's."""
+    placement) kept at x0, the start pose's. `free` (data): only these entries move, the
+    j-th of them along the Halton point's j-th dimension (as in a vector of those alone)."""
     n = x0.shape[0]
     if n == 0:
         return x0
-    table = jnp.asarray(halton(MAX_STARTS, n), x0.dtype)
-    point = jnp.where(np.arange(n) >= n - n_trunk, x0, table[jnp.mod(k, MAX_STARTS)])
-    return jnp.where(k == 0, first, point)
+    point = jnp.asarray(halton(MAX_STARTS, n), x0.dtype)[jnp.mod(k, MAX_STARTS)]
+    kept = np.arange(n) >= n - n_trunk
+    if free is not None:
+        point = point[jnp.maximum(jnp.cumsum(free) - 1, 0)]
+        kept = kept | ~free
+    return jnp.where(k == 0, first, jnp.where(kept, x0, point))
