@@ -21,6 +21,10 @@ jaxpr to MLIR module conversion" lines the seconds spent tracing and lowering.
    `load_body` apart, cold and cached) and a warm call (the median of 20 more calls on the same
    target). Importing diffbody turns the cache on (`diffbody._programs.keep_compiled`): every
    program is kept, and the solve programs are exported beside it.
+   Then, in the same process, four solves with other effectors (another wrist, two
+   targets, a palm with a full orientation, another far reach) and one with a segment subset
+   (the left arm: no standing, so another constraint set): the programs each compiles (goal
+   0 for the four: one program per body and constraint set, docs/design.md section 6).
 3. `import diffbody` (of which `import jax`), after an untimed `compileall` of the package.
 
 `--repeats N` fresh processes per figure (default 3; --quick 1): the median and the range.
@@ -82,8 +86,24 @@ line = dict(load_s=load_s, first_s=first_s, status=db.ReachStatus(int(out.status
     residual_mm=1e3 * float(out.residuals.max()), trunk=out.pose.spine_target is not None)
 print("@@ warm", file=sys.stderr, flush=True)
 line["warm_s"] = statistics.median(solve()[1] for _ in range({warm}))
+print("@@ others", file=sys.stderr, flush=True)
+frame = db.Target.frame("right_hand", [[1, 0, 0], [0, -1, 0], [0, 0, -1]])
+others = [
+    [db.Target.position("right_wrist", (-0.3, 0.35, 1.2))],
+    [db.Target.position("left_wrist", (0.3, 0.4, 1.2)),
+     db.Target.position("right_hand.palm", (-0.3, 0.3, 1.1))],
+    [db.Target.position("right_hand.palm", (-0.35, 0.3, 1.0)), *frame],
+    [db.Target.position("left_wrist", (0.3, 0.8, 0.8))],
+]
+line["others"] = [db.ReachStatus(int(db.solve_reach(body, t).status)).name for t in others]
+print("@@ subset", file=sys.stderr, flush=True)
+arm = ["left_clavicle", "left_upper_arm", "left_forearm", "left_hand"]
+out = db.solve_reach(body, [db.Target.position("left_wrist", (0.3, 0.3, 1.2))], segments=arm)
+line["others"].append(db.ReachStatus(int(out.status)).name)
 print(json.dumps(line))
 """
+OTHERS_ROW = "then 4 other solves (effectors, 2 targets, a frame): programs compiled"
+SUBSET_ROW = "then a segment subset (no standing: another constraint set): programs compiled"
 IMPORT = """\
 import json, time
 t0 = time.perf_counter()
@@ -221,11 +241,14 @@ def main() -> None:
                 add("solve_reach: load_body (s)", state, line["load_s"], phases["load_body"])
                 add("solve_reach: first call (s)", state, line["first_s"], phases["first"])
                 add(warm_row, state, line["warm_s"] * 1e3, phases["warm"])
+                add(OTHERS_ROW, state, phases["others"].count, phases["others"])
+                add(SUBSET_ROW, state, phases["subset"].count, phases["subset"])
                 if rep == 0 and state == "cold":
                     first_cold["solve_reach first call"] = phases["first"]
                     print(
                         f"solve_reach to {REACH_TARGET}: {line['status']}, residual "
-                        f"{line['residual_mm']:.3f} mm, trunk joined: {line['trunk']}"
+                        f"{line['residual_mm']:.3f} mm, trunk joined: {line['trunk']}; "
+                        f"the other solves: {', '.join(line['others'])}"
                     )
         print(f"repetition {rep + 1} of {repeats} done")
 
@@ -270,6 +293,9 @@ def main() -> None:
             (f"solve_reach standing, warm, median of {warm}", warm_ms, GOAL_WARM_MS, " ms"),
         )
     ]
+    for state in ("cold", "cached"):
+        figure = f"4 other solves after the first, {state}: programs compiled"
+        goals.append(goal(figure, med[OTHERS_ROW][state], 0, fmt=".0f", op="<="))
     print_goals(goals, f"goals (medians of {repeats} fresh processes; 2-core CPU goals, float32)")
     run_record.add_goals(goals)
     run_record.write(results.out_dir(args.out, args.quick))
