@@ -60,10 +60,6 @@ class Constraints(eqx.Module):
     edge_offset: Float[Array, " E"]
     edge: Array  # (E,) bool
     balance_margin: Float[Array, ""]
-    # 1, or 0 where a phase carries another phase's constraints without keeping them (the
-    # limbs' phase on the whole tree's program, `_phases.solve_host`): rows and violations
-    # are multiplied by it, so one program serves both phases.
-    active: Float[Array, ""]
 
     @property
     def balance(self) -> bool:
@@ -208,7 +204,6 @@ def _host_constraints(body: Body, targets: Sequence) -> Constraints:
         edge_offset=device_array(np.zeros(n_sole**2)),
         edge=device_array(np.zeros(n_sole**2, bool), bool),
         balance_margin=device_array(max([t.margin for t in balance], default=0.0)),
-        active=device_array(1.0),
     )
 
 
@@ -293,12 +288,7 @@ def constraint_rows(
         r = jnp.where(c.edge, jax.nn.relu(c.balance_margin - inside), 0.0)
         rows.append(r)
         worst.append(jnp.max(r, initial=0.0))
-    return c.active * jnp.concatenate(rows), c.active * jnp.stack(worst)
-
-
-def inactive(c: Constraints) -> Constraints:
-    """The constraints carried but not kept (`Constraints.active` 0)."""
-    return eqx.tree_at(lambda c: c.active, c, device_array(0.0))
+    return jnp.concatenate(rows), jnp.stack(worst)
 
 
 def pose_violations(body: Body, pose: Pose, c: Constraints | None) -> Array:

@@ -36,7 +36,6 @@ from ._attempt import (
     round_caps,
     solve_free,
 )
-from ._constraints import Constraints, inactive
 from ._plans import fits_tree, make_plan
 from ._problem import stiffness_of
 from ._targets import TargetSet
@@ -368,7 +367,7 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plan
         if not far.any():
             caps = round_caps(steps_k)
         plan = None if plans is None else plans[phase]
-        solved = ts if plan is None else padded_targets(ts, carried(ts, phase_targets))
+        solved = ts if plan is None else padded_targets(ts)
         for k in range(1 if far.any() else starts):
             closed = closed_form(phase, ts)
             a = run_start(body, layout, start_pose, solved, k, caps, tols, closed, plan)
@@ -379,16 +378,6 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plan
                 return best, steps, beyond
         start_pose = best.pose  # the trunk joins from the limbs' closest reach
     return best, steps, beyond
-
-
-def carried(ts: TargetSet, phase_targets) -> Constraints | None:
-    """The constraints a phase's round carries on the whole tree's program: its own; or,
-    when it has none, the last phase's, not kept (`inactive`): the limbs' phase then runs on
-    the standing phase's program."""
-    last = phase_targets[-1].constraints
-    if ts.constraints is not None or last is None:
-        return ts.constraints
-    return inactive(last)
 
 
 def solve_traced(body, layouts, init, phase_targets, starts, max_steps, tols, plans=None):

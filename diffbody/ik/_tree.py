@@ -131,10 +131,9 @@ def targets_rows(targets: TargetSet) -> tuple[int, int]:
     )
 
 
-def padded_targets(targets: TargetSet, constraints=...) -> TargetSet:
+def padded_targets(targets: TargetSet) -> TargetSet:
     """The target set padded to its buckets (host): pad rows are not finite (so they take
-    no part) and weigh nothing; the effectors are the plan's (data), not the set's.
-    `constraints`: in place of the set's own, when given."""
+    no part) and weigh nothing; the effectors are the plan's (data), not the set's."""
     P, A = targets_rows(targets)
 
     def pad(a, rows: int, fill: float) -> Array:
@@ -150,7 +149,7 @@ def padded_targets(targets: TargetSet, constraints=...) -> TargetSet:
         axis_local=pad(targets.axis_local, A, 0.0),
         axis_direction=pad(targets.axis_direction, A, np.nan),
         axis_weight=pad(targets.axis_weight, A, 0.0),
-        constraints=targets.constraints if constraints is ... else constraints,
+        constraints=targets.constraints,
     )
 
 
