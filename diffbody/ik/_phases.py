@@ -28,6 +28,7 @@ from .._kinematics import Links, forward
 from .._programs import compiled, is_traced
 from .._spine import spine_angles
 from ._attempt import (
+    Attempt,
     assess,
     attempt_round,
     better,
@@ -39,7 +40,7 @@ from ._attempt import (
 from ._plans import fits_tree, make_plan
 from ._problem import stiffness_of
 from ._targets import TargetSet
-from ._tree import padded_targets, tree_layout
+from ._tree import padded_targets, targets_rows, tree_layout
 from ._unknowns import Layout, make_layout, path_to_top, point_segment
 
 
@@ -326,18 +327,30 @@ def run_start(body, layout, init, ts, k: int, caps: list[int], tols, closed_form
 
 
 def phase_plans(body: Body, layouts: list[Layout], phase_targets) -> list | None:
-    """Each phase's plan on the whole tree's program (`_tree`), or None where the solve
-    does not fit it (a re-rooted body, a center-of-gravity target, a vertebra free
-    without the spine): then each phase compiles its own layout."""
+    """Each phase's plan on the whole tree's program (`_tree`), None for a phase that
+    compiles its own layout: the standing phase. None in all where the solve does not fit
+    the tree (a re-rooted body, a center-of-gravity target, a vertebra free without the
+    spine).
+
+    Why the standing phase keeps its own program: a far standing reach ends where its step
+    budget runs out near a constrained equilibrium, and there rounding decides the answer
+    (an accepted or rejected step flips at 1e-13): on the whole tree's arithmetic the guide's
+    1.1 m rung ends 13 mm short where its own layout's ends 7.5 mm short, equally far from
+    converged. Its program stays the one whose answers the reach ladder documents."""
     sets = phase_targets_of(layouts, phase_targets)
     if not fits_tree(body, sets[0]):
         return None
     tree = tree_layout(body)
-    plans = [
-        make_plan(body, tree, lay, ts, closed_form(k, ts), stiffness_of(body, lay))
-        for k, (lay, ts) in enumerate(zip(layouts, sets))
-    ]
-    return None if any(p is None for p in plans) else plans
+    plans = []
+    for k, (lay, ts) in enumerate(zip(layouts, sets)):
+        if lay.standing:
+            plans.append(None)
+            continue
+        plan = make_plan(body, tree, lay, ts, closed_form(k, ts), stiffness_of(body, lay))
+        if plan is None:
+            return None
+        plans.append(plan)
+    return plans
 
 
 def closed_form(phase: int, ts: TargetSet) -> bool:
@@ -371,6 +384,8 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plan
         for k in range(1 if far.any() else starts):
             closed = closed_form(phase, ts)
             a = run_start(body, layout, start_pose, solved, k, caps, tols, closed, plan)
+            if plans is not None and plan is None:
+                a = padded_errors(a, ts)  # as the whole tree's attempts, for one conclusion
             steps += int(a.steps)
             if best is None or bool(better(*jax.tree.map(np.asarray, (a, best)))):
                 best = a
@@ -378,6 +393,13 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plan
                 return best, steps, beyond
         start_pose = best.pose  # the trunk joins from the limbs' closest reach
     return best, steps, beyond
+
+
+def padded_errors(a: Attempt, ts: TargetSet) -> Attempt:
+    """An attempt's errors padded to the targets' buckets (host; `_tree.targets_rows`)."""
+    P, A = targets_rows(ts)
+    pad = lambda e, rows: np.concatenate([np.asarray(e), np.zeros(rows - len(e))])  # noqa: E731
+    return eqx.tree_at(lambda a: (a.err_p, a.err_a), a, (pad(a.err_p, P), pad(a.err_a, A)))
 
 
 def solve_traced(body, layouts, init, phase_targets, starts, max_steps, tols, plans=None):

@@ -109,10 +109,11 @@ def test_a_standing_solve_compiles_each_phase_once(male50, monkeypatch):
 
 
 def test_new_effectors_subsets_and_row_counts_compile_nothing(male50):
-    """One program per body and constraint set: after an arm's reach, a far reach (the
+    """One program per body for the limbs' phase: after an arm's reach, a far reach (the
     trunk joins, standing) and a reach with a segment subset, other effectors, two point
-    targets, a point with a full orientation, another subset and another far reach compile
-    nothing new, and reach."""
+    targets, a point with the palm's direction and another subset compile nothing new, and
+    reach. A far reach with another effector compiles its standing round only (the standing
+    phase keeps a program per layout: `_phases.phase_plans`)."""
     arm = ["left_clavicle", "left_upper_arm", "left_forearm", "left_hand"]
     warm = [
         db.solve_reach(male50, [Target.position("left_hand.palm", (0.35, 0.3, 1.1))]),
@@ -120,11 +121,11 @@ def test_new_effectors_subsets_and_row_counts_compile_nothing(male50):
         db.solve_reach(male50, [Target.position("left_wrist", (0.3, 0.3, 1.2))], segments=arm),
     ]
     assert warm[1].pose.spine_target is not None  # the trunk joined
-    frame = Target.frame("right_hand", np.diag([1.0, -1.0, -1.0]))
+    palm_down = Target.axis_direction("right_hand", (0, 1, 0), (0, 0, -1))
     right_arm = [name.replace("left", "right") for name in arm]
     with counted_compiles() as seen:
         outs = [
-            db.solve_reach(male50, [Target.position("right_wrist", (-0.3, 0.35, 1.2))]),
+            db.solve_reach(male50, [Target.position("right_wrist", (-0.25, 0.3, 1.15))]),
             db.solve_reach(
                 male50,
                 [
@@ -132,13 +133,24 @@ def test_new_effectors_subsets_and_row_counts_compile_nothing(male50):
                     Target.position("right_hand.palm", (-0.3, 0.3, 1.1)),
                 ],
             ),
-            db.solve_reach(male50, [Target.position("right_hand.palm", (-0.35, 0.3, 1.0)), *frame]),
+            db.solve_reach(
+                male50, [Target.position("right_hand.palm", (-0.3, 0.35, 1.2)), palm_down]
+            ),
             db.solve_reach(
                 male50, [Target.position("right_wrist", (-0.25, 0.3, 1.15))], segments=right_arm
             ),
-            db.solve_reach(male50, [Target.position("left_wrist", (0.3, 0.8, 0.8))]),
         ]
     assert seen == []
     for out in warm + outs:
         assert int(out.status) == 0, out.residuals
-    assert outs[-1].pose.spine_target is not None
+    assert all(out.pose.spine_target is None for out in outs)  # the limbs alone
+    handler = _Compiles()
+    logger = logging.getLogger("jax")
+    logger.addHandler(handler)
+    try:
+        with jax.log_compiles():
+            far = db.solve_reach(male50, [Target.position("left_wrist", (0.3, 0.8, 0.8))])
+    finally:
+        logger.removeHandler(handler)
+    assert far.pose.spine_target is not None and int(far.status) == 0
+    assert handler.names == ["attempt_round"], handler.names
