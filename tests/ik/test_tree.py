@@ -1,0 +1,117 @@
+"""The whole tree's problem against a phase's own (docs/design.md, section 6, "One program
+per body"): the same residuals, Jacobian, starts and limb start on the phase's unknowns,
+nothing moving elsewhere (reference: the phase's own layout, an independent program)."""
+
+import jax
+import numpy as np
+import pytest
+
+import diffbody as db
+from diffbody.ik._attempt import start_vector
+from diffbody.ik._phases import phase_layouts, phase_plans, phase_targets_of
+from diffbody.ik._plans import make_plan
+from diffbody.ik._problem import make_problem, stiffness_of
+from diffbody.ik._reach import constrained_targets
+from diffbody.ik._targets import Target, mask_invalid, resolve_targets
+from diffbody.ik._tree import padded_targets, targets_rows, tree_entries, tree_layout
+
+CASES = {
+    "palm": [Target.position("left_hand.palm", (0.35, 0.3, 1.1))],
+    "two hands and a direction": [
+        Target.position("left_wrist", (0.3, 0.4, 1.2)),
+        Target.position("right_hand.palm", (-0.3, 0.35, 1.2)),
+        Target.axis_direction("right_hand", (0, 1, 0), (0, 0, -1)),
+    ],
+    "far, standing": [Target.position("left_hand.palm", (0.9, 0.19, 1.29))],
+}
+
+
+def _phases_of(body, targets, stand=True):
+    init = body.rest_pose()
+    ts, _ = resolve_targets(body, targets)
+    pts = constrained_targets(body, ts, targets, init, stand)
+    layouts = phase_layouts(body, pts, spine=True, free_root=False, segments=None, stand=stand)
+    return init, layouts, phase_targets_of(layouts, pts)
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_the_tree_problem_is_each_phase_s_problem(name):
+    """For every phase (the standing one included, although it runs on its own program),
+    at random free vectors: the tree's residuals on the given target rows, the constraint
+    rows and the pull rows of the phase's unknowns equal the phase's to 1e-12, the other
+    rows are zero, and the Jacobian's columns of the phase's unknowns equal the phase's
+    Jacobian while the others move nothing but their own pull."""
+    body = db.load_body()
+    init, layouts, sets = _phases_of(body, CASES[name])
+    tree = tree_layout(body)
+    rng = np.random.default_rng(3)
+    for k, (layout, ts) in enumerate(zip(layouts, sets)):
+        plan = make_plan(body, tree, layout, ts, k == 0, stiffness_of(body, layout))
+        entries = tree_entries(tree, layout)
+        own, _, _ = mask_invalid(ts)
+        padded, _, _ = mask_invalid(padded_targets(ts))
+        phase = make_problem(body, layout, init)
+        whole = make_problem(body, tree, init, plan)
+        x = np.asarray(phase.x0) + 0.2 * rng.standard_normal(layout.n_free)
+        X = np.asarray(whole.x0).copy()
+        X[entries] = x
+        x, X = jax.device_put(x), jax.device_put(X)
+        r, R = np.asarray(phase.residuals(x, own)), np.asarray(whole.residuals(X, padded))
+        J = np.asarray(jax.jacfwd(phase.residuals)(x, own))
+        JJ = np.asarray(jax.jacfwd(whole.residuals)(X, padded))
+        n_p, n_a = len(ts.point_weight), len(ts.axis_weight)
+        P, A = targets_rows(ts)
+        n_c = r.shape[0] - 3 * (n_p + n_a) - layout.n_free
+        take = np.concatenate(
+            [
+                np.arange(3 * n_p),
+                3 * P + np.arange(3 * n_a),
+                3 * (P + A) + np.arange(n_c),
+                3 * (P + A) + n_c + entries,
+            ]
+        )
+        np.testing.assert_allclose(R[take], r, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(np.delete(R, take), 0.0)
+        np.testing.assert_allclose(JJ[np.ix_(take, entries)], J, rtol=0, atol=1e-10)
+        others = np.setdiff1d(np.arange(tree.n_free), entries)
+        pull_rows = 3 * (P + A) + n_c + others
+        np.testing.assert_array_equal(np.delete(JJ[:, others], pull_rows, axis=0), 0.0)
+
+
+@pytest.mark.parametrize("name", ["palm", "two hands and a direction"])
+def test_the_tree_starts_are_the_phase_s_starts(name):
+    """The closed-form limb start (data: the plan's limbs) and the Halton starts (by rank
+    among the free entries) equal the phase's own starts on its unknowns, and leave every
+    other entry at the start pose's."""
+    body = db.load_body()
+    init, layouts, sets = _phases_of(body, CASES[name])
+    layout, ts = layouts[0], sets[0]
+    tree = tree_layout(body)
+    (plan,) = phase_plans(body, layouts[:1], sets[:1])
+    entries = tree_entries(tree, layout)
+    phase = make_problem(body, layout, init)
+    whole = make_problem(body, tree, init, plan)
+    own, _, _ = mask_invalid(ts)
+    padded, _, _ = mask_invalid(padded_targets(ts))
+    for k in range(4):
+        a = np.asarray(start_vector(body, layout, own, phase, jax.device_put(np.int32(k)), True))
+        b = np.asarray(start_vector(body, tree, padded, whole, jax.device_put(np.int32(k)), True))
+        np.testing.assert_allclose(b[entries], a, rtol=0, atol=1e-12)
+        others = np.setdiff1d(np.arange(tree.n_free), entries)
+        np.testing.assert_array_equal(b[others], np.asarray(whole.x0)[others])
+
+
+def test_the_tree_answers_are_the_phase_s_answers():
+    """Reachable arm targets, solved on the whole tree's program and on the phase's own:
+    both reach, and the joints agree to 0.1 mm (a converged solve forgets rounding)."""
+    from diffbody.ik import _reach
+
+    body = db.load_body()
+    for targets in (CASES["palm"], CASES["two hands and a direction"]):
+        tree = db.solve_reach(body, targets)
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(_reach, "phase_plans", lambda *a: None)
+            own = db.solve_reach(body, targets)
+        assert int(tree.status) == int(own.status) == 0
+        a, b = (np.asarray(db.forward(body, r.pose).joint_positions) for r in (tree, own))
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-4)
