@@ -402,11 +402,11 @@ def padded_errors(a: Attempt, ts: TargetSet) -> Attempt:
     return eqx.tree_at(lambda a: (a.err_p, a.err_a), a, (pad(a.err_p, P), pad(a.err_a, A)))
 
 
-def solve_traced(body, layouts, init, phase_targets, starts, max_steps, tols, plans=None):
+def solve_traced(body, layouts, init, phase_targets, starts, max_steps, tols):
     """The same phases with every start side by side (for jax.grad / jit / vmap): each
     phase's solve runs without derivatives, and its answer is differentiated implicitly.
-    Returns what `solve_host` does, with no target flagged as beyond. (Each phase compiles
-    its own layout: `plans` is None here.)"""
+    Returns what `solve_host` does, with no target flagged as beyond. Each phase compiles
+    its own layout."""
     best, steps = None, jnp.asarray(0)
     start_pose = init
     for phase, (layout, ts) in enumerate(zip(layouts, phase_targets_of(layouts, phase_targets))):

@@ -171,8 +171,10 @@ def solve_reach(
     settings = (int(starts), int(max_steps), tols)
     traced = is_traced(body, init, phase_targets)
     plans = None if traced else phase_plans(body, layouts, phase_targets)
-    run = solve_traced if traced else solve_host
-    best, steps, beyond = run(body, layouts, init, phase_targets, *settings, plans)
+    if traced:
+        best, steps, beyond = solve_traced(body, layouts, init, phase_targets, *settings)
+    else:
+        best, steps, beyond = solve_host(body, layouts, init, phase_targets, *settings, plans)
     back = np.argsort(order)
     if not traced:
         # On the host, every leaf alike: committed device arrays beside host ones would
