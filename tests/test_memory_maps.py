@@ -25,7 +25,19 @@ def test_memory_maps_counts_this_process():
     assert len(pages) == 20
 
 
-def test_the_watch_empties_the_caches_near_the_limit_and_warns_once(monkeypatch):
+@pytest.fixture
+def quiet_watch():
+    """The process's own watch unregistered: it reads the same (patched) `memory_maps` and,
+    at a multiple of EVERY compiles in this worker, would empty the caches and warn
+    during the test (a flake that depended on what the worker compiled before)."""
+    jax.monitoring.unregister_event_duration_listener(_memory_maps.WATCH)
+    try:
+        yield
+    finally:
+        jax.monitoring.register_event_duration_secs_listener(_memory_maps.WATCH)
+
+
+def test_the_watch_empties_the_caches_near_the_limit_and_warns_once(monkeypatch, quiet_watch):
     f = jax.jit(lambda x: x + 1)
     f(1.0)
     assert f._cache_size() == 1
