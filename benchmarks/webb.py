@@ -62,7 +62,7 @@ def walk_joints() -> np.ndarray:
     source is chosen. From the marker files when data/mocap is present (the marker-midpoint
     and regression approximations of `diffbody.images._joint_centres`), else from their copy in
     data/webb/walk1_joints.csv. A fit of the body to the markers can replace it here."""
-    from diffbody.fitting._trc import read_trc
+    from diffbody.files._trc import read_trc
     from diffbody.images._joint_centres import joint_centres_from_markers, load_walk_joints
 
     mocap = Path(__file__).resolve().parent.parent / "data" / "mocap"

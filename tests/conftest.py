@@ -132,7 +132,7 @@ LONGEST = (
     "test_readme.py",
     "test_constraints.py",
     "test_mocap.py",
-    "test_sphere_fit.py",
+    "test_cloud_fit.py",
     "test_cli_mocap.py",
     "test_posture.py",
     "test_cli_reach.py",

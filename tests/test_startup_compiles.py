@@ -16,7 +16,7 @@ import diffbody as db
 from diffbody._memory_maps import BACKEND_COMPILE
 from diffbody.contact import sole_spheres
 from diffbody.ik import _constraints
-from diffbody.ik._constraints import FEET, resolve_constraints
+from diffbody.ik._constraints import GEOMETRY, resolve_constraints
 from diffbody.ik._targets import _floor_jit, resolve_targets, standing
 
 # What a fresh process may compile for the set-up below: the standard position and the
@@ -53,7 +53,7 @@ def test_setting_up_a_standing_reach_compiles_only_the_forward_kinematics(monkey
     """From empty caches: no "stage", "convert_element_type", "broadcast_in_dim" or other
     small program, nor one for the floor or the planted soles (before: 33 programs); again:
     nothing at all."""
-    monkeypatch.setattr(_constraints, "_HOST", {})
+    monkeypatch.setattr(_constraints, "_HOST", BodyCache(GEOMETRY))
     jax.clear_caches()
     with _compiles() as first:
         _set_up()

@@ -19,8 +19,9 @@ import numpy as np  # noqa: E402
 
 import diffbody as db  # noqa: E402
 from diffbody.files._data_files import data_file  # noqa: E402
-from diffbody.fitting._markerset import load_markerset, scale_offsets, world_markers  # noqa: E402
-from diffbody.fitting._trc import read_trc  # noqa: E402
+from diffbody.files._markerset_file import load_markerset  # noqa: E402
+from diffbody.files._trc import read_trc  # noqa: E402
+from diffbody.mocap._markerset import scale_offsets, world_markers  # noqa: E402
 
 SUBJECT_STATURE = 1.8034  # m, OpenSim's scale setup (subject01_Setup_Scale.xml)
 ARMS = ("Acromium", "Bicep", "Elbow", "Wrist")

@@ -28,7 +28,7 @@ import numpy as np  # noqa: E402
 
 import diffbody as db  # noqa: E402
 from diffbody._body import rest_geometry  # noqa: E402
-from diffbody.fitting._markerset import (  # noqa: E402
+from diffbody.files._markerset_file import (  # noqa: E402
     DEFAULT_MARKER_RADIUS,
     MarkerEntry,
     resolve_offset,

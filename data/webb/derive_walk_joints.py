@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from diffbody.fitting._trc import read_trc
+from diffbody.files._trc import read_trc
 from diffbody.images._joint_centres import NAMES, joint_centres_from_markers
 
 ROOT = Path(__file__).resolve().parents[2]

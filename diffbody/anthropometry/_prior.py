@@ -10,12 +10,11 @@ not tilt the regression that every other body follows. AddBiomechanics condition
 Gaussian on height and weight; the held-out figures of both are in the README.
 """
 
-import csv
 from typing import NamedTuple
 
 import numpy as np
 
-from ..files._data_files import data_file
+from ..files._data_files import data_rows
 from ._measurements import MEASUREMENT_NAMES, UNITS, check_names
 
 SEXES = ("male", "female")
@@ -27,9 +26,7 @@ def ansur2_subjects(sex: str) -> tuple[np.ndarray, np.ndarray]:
     survey's file (n,), and their measurements (n, k) in `MEASUREMENT_NAMES` order, in
     metres (weightkg in kg)."""
     check_sex(sex)
-    with open(data_file("ansur2_subjects.csv"), encoding="utf-8") as f:
-        rows = [r for r in csv.DictReader(line for line in f if not line.startswith("#"))]
-    rows = [r for r in rows if r["sex"] == sex]
+    rows = [r for r in data_rows("ansur2_subjects.csv") if r["sex"] == sex]
     values = np.asarray([[float(r[n]) for n in MEASUREMENT_NAMES] for r in rows])
     to_si = np.asarray([1.0 if UNITS[n] == "kg" else 1e-3 for n in MEASUREMENT_NAMES])
     return np.asarray([int(r["row"]) for r in rows]), values * to_si

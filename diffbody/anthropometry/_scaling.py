@@ -135,3 +135,11 @@ def stand_on_ground(body: Body) -> Body:
     lowest = jnp.min(centers[:, 2] - body.sphere_radii) if body.n_spheres else 0.0
     position = jnp.zeros(3, body.lengths.dtype).at[2].set(-lowest)
     return eqx.tree_at(lambda b: b.rest_position, body, position)
+
+
+def log_scaled(template: Body, log_axial: Array, log_radial: Array) -> Body:
+    """The template with the group scale factors exp(log_axial), exp(log_radial) (each
+    `(N_GROUPS,)`): the unknowns of the fits that scale a body by gradient."""
+    axial = per_segment(template, jnp.exp(log_axial))
+    radial = per_segment(template, jnp.exp(log_radial))
+    return scale_body(template, axial, radial)

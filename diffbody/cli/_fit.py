@@ -30,42 +30,18 @@ def add_fit_command(sub) -> None:
     p.set_defaults(run=_fit)
 
 
-def _read_cloud(path: str):
-    """centers (m, 3), radii (m,) and correspondences (m,) or None from an .npz file."""
-    import numpy as np
-
-    try:
-        data = np.load(path, allow_pickle=False)
-    except (ValueError, OSError) as e:
-        if isinstance(e, (FileNotFoundError, IsADirectoryError, PermissionError)):
-            raise
-        raise ValueError(
-            f"{path}: not a NumPy .npz file ({e}); write one with "
-            "numpy.savez(path, centers=(m, 3) array in m, radii=(m,) array in m)"
-        ) from None
-    if not hasattr(data, "files"):
-        raise ValueError(f"{path}: a single array, not an .npz archive of named arrays")
-    for key in ("centers", "radii"):
-        if key not in data.files:
-            raise ValueError(
-                f"{path}: no array {key!r} (found {sorted(data.files)}); give centers=(m, 3) "
-                "and radii=(m,) in m, and optionally correspondences=(m,) model sphere indices"
-            )
-    match = data["correspondences"] if "correspondences" in data.files else None
-    return data["centers"], data["radii"], match
-
-
 def _fit(args) -> int:
 
     import numpy as np
 
+    from ..clouds._cloud_fit import INLIER_DISTANCE, LANDED_INLIERS, FitStatus, fit_spheres
+    from ..files._cloud_file import read_cloud
     from ..files._saving import save_body
-    from ..fitting._sphere_fit import INLIER_DISTANCE, LANDED_INLIERS, FitStatus, fit_spheres
 
     check_output("--out", args.out)
     check_output("--png", args.png)
     body = body_from_args(args)
-    centers, radii, match = _read_cloud(args.cloud)
+    centers, radii, match = read_cloud(args.cloud)
     try:
         out = fit_spheres(body, centers, radii, correspondences=match, fit=tuple(args.fit))
     except ValueError as e:

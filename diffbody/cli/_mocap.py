@@ -129,7 +129,7 @@ def add_mocap_command(sub) -> None:
 
 def _axes(text: str | None):
     """The lab axes named by --axes; None (not given) lets each file say its own."""
-    from ..fitting._marker_trial import LAB_AXES
+    from ..files._marker_trial import LAB_AXES
 
     if text is not None and text not in LAB_AXES:
         raise ValueError(f"--axes {text}: unknown lab axes; use one of {', '.join(LAB_AXES)}")
@@ -163,7 +163,7 @@ def _mocap(args) -> int:
 def _mocap_trials(args) -> int:
     """A folder or glob pattern of trials: `fit_trials`, interrupts told as a clean stop."""
     from .._streaming import Interrupted, Interrupts, read_results
-    from ..fitting._trials import SUMMARY, fit_trials, trial_files
+    from ..mocap._trials import SUMMARY, fit_trials, trial_files
 
     out = "fits" if args.out is None else args.out
     if os.path.exists(out) and not os.path.isdir(out):
@@ -221,13 +221,13 @@ def _mocap_trials(args) -> int:
 def _mocap_one(args) -> int:
     import jax
 
-    from ..fitting._markers import read_markers
-    from ..fitting._markerset import match_markers
-    from ..fitting._motion_fit import fit_motion
-    from ..fitting._opensim_files import read_ik_tasks
-    from ..fitting._sphere_fit import FitStatus
-    from ..fitting._static_fit import scale_and_register
-    from ..fitting._trial_outputs import (
+    from ..clouds._cloud_fit import FitStatus
+    from ..files._marker_files import read_markers
+    from ..files._opensim_files import read_ik_tasks
+    from ..mocap._markerset import match_markers
+    from ..mocap._motion_fit import fit_motion
+    from ..mocap._static_fit import scale_and_register
+    from ..mocap._trial_outputs import (
         load_any_markerset,
         picture,
         save_angles,
@@ -237,7 +237,7 @@ def _mocap_one(args) -> int:
         save_scaled_body,
         scaled_body,
     )
-    from ..fitting._trials import noted
+    from ..mocap._trials import noted
 
     for flag, path, suffix in (
         ("--out", args.out, ".npz"),

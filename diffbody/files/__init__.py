@@ -1,6 +1,7 @@
-"""File formats: the body and spine files (JSON, their schema in data/SCHEMA.md), the checks
-every reader shares, saving a body back to a file, the pose file of every result
-(`save_pose`, `load_pose`) and OpenSim's motion files (.mot)."""
+"""Every file format diffbody reads or writes: the body and spine files (JSON, their schema in
+data/SCHEMA.md), the checks every reader shares, saving a body back to a file, the pose file of
+every result (`save_pose`, `load_pose`), targets, marker files (TRC, C3D), marker sets (ours and
+OpenSim's XML), OpenSim's IK task sets and motion files (.mot)."""
 
 from ._body_file import (
     load_body as load_body,
@@ -11,6 +12,14 @@ from ._data_files import (
 from ._data_files import (
     data_file as data_file,
 )
+from ._marker_files import c3d_screen_axes as c3d_screen_axes
+from ._marker_files import read_c3d as read_c3d
+from ._marker_files import read_markers as read_markers
+from ._marker_trial import LAB_AXES as LAB_AXES
+from ._marker_trial import MarkerFileError as MarkerFileError
+from ._marker_trial import MarkerTrial as MarkerTrial
+from ._markerset_file import MarkerSet as MarkerSet
+from ._markerset_file import load_markerset as load_markerset
 from ._motion_files import (
     MotionFileError as MotionFileError,
 )
@@ -20,6 +29,8 @@ from ._motion_files import (
 from ._motion_files import (
     write_mot as write_mot,
 )
+from ._opensim_files import load_opensim_markerset as load_opensim_markerset
+from ._opensim_files import read_ik_tasks as read_ik_tasks
 from ._pose_file import (
     PoseFileError as PoseFileError,
 )
@@ -41,3 +52,5 @@ from ._saving import (
 from ._spine_file import (
     load_spine as load_spine,
 )
+from ._trc import read_trc as read_trc
+from ._trc import write_trc as write_trc

@@ -8,6 +8,8 @@ entry, the field and what is expected, e.g. ``body.json: segment 'left_forearm'
 be read (missing aside) or is not UTF-8 JSON is a `BodyFileError` naming the file too.
 """
 
+import csv
+import io
 import json
 import math
 from importlib import resources
@@ -26,6 +28,19 @@ def data_file(name: str) -> Path:
         if (folder / name).is_file():
             return folder / name
     raise FileNotFoundError(f"diffbody: embedded data file {name!r} not found")
+
+
+def data_rows(name: str) -> list[dict[str, str]]:
+    """The rows of an embedded CSV table ({column: text}), its '#' comment lines dropped."""
+    path = data_file(name)
+    text = read_text(path, "data table", ValueError, "an embedded table is UTF-8 CSV")
+    return list(csv.DictReader(line for line in text.splitlines() if not line.startswith("#")))
+
+
+def data_array(name: str, header_lines: int) -> np.ndarray:
+    """The numbers of an embedded CSV table after its `header_lines` lines, (rows, columns)."""
+    text = read_text(data_file(name), "data table", ValueError, "an embedded table is UTF-8 CSV")
+    return np.loadtxt(io.StringIO(text), delimiter=",", skiprows=header_lines, ndmin=2)
 
 
 class _Object(dict):
@@ -152,24 +167,41 @@ def bounded(where: Where, field: str, x: float, bound, unit: str = "") -> float:
     return x
 
 
+def read_text(
+    path, kind: str, error: type[ValueError], saved_as: str, *, unit: str = "line"
+) -> str:
+    """The text of a `kind` file (a byte-order mark dropped): how every reader opens a file.
+
+    A missing file is a FileNotFoundError ("PATH: no such KIND file"); a folder, bytes that
+    are not UTF-8 and any other failure to read are `error`s naming the file, and for bad
+    bytes the `unit` ("line", or "row" for a CSV) and byte, and how the file is meant to be
+    saved (`saved_as`, e.g. "a TRC file is tab-separated text")."""
+    shown = str(path)
+    try:
+        data = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{shown}: no such {kind} file") from None
+    except IsADirectoryError:
+        article = "an" if kind[0] in "aeiouAEIOU" else "a"
+        raise error(f"{shown}: is a directory; expected {article} {kind} file") from None
+    except OSError as e:
+        raise error(f"{shown}: cannot read the {kind} file: {e.strerror}") from None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = data[: e.start].count(b"\n") + 1
+        raise error(
+            f"{shown}: {unit} {line}: not UTF-8 text (byte 0x{data[e.start]:02x} at offset "
+            f"{e.start}); {saved_as}"
+        ) from None
+
+
 def read_json(path: Path, kind: str, error: type[ValueError] = BodyFileError) -> Any:
     """The JSON document of a `kind` ("body", "spine", "marker set") file; every failure names
     the file and raises `error`. Objects keep the keys given twice (`_Object.duplicates`) for
     `Where.fields` to reject."""
     shown = str(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{shown}: no such {kind} file") from None
-    except IsADirectoryError:
-        raise error(f"{shown}: is a directory; expected a {kind} JSON file") from None
-    except UnicodeDecodeError as e:
-        raise error(
-            f"{shown}: not UTF-8 text (byte 0x{e.object[e.start]:02x} at offset {e.start}); "
-            f"a {kind} file is JSON saved as UTF-8"
-        ) from None
-    except OSError as e:
-        raise error(f"{shown}: cannot read the {kind} file: {e.strerror}") from None
+    text = read_text(path, f"{kind} JSON", error, f"a {kind} file is JSON saved as UTF-8")
     try:
         return json.loads(text, object_pairs_hook=json_object)
     except json.JSONDecodeError as e:

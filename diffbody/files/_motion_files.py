@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._data_files import read_text
+
 MOT_VERSION = 1
 
 
@@ -137,15 +139,7 @@ def read_mot(path: str | Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         are as stored: angles in degrees where the header says ``inDegrees=yes``.
     """
     shown = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{shown}: no such motion file") from None
-    except UnicodeDecodeError as e:
-        raise MotionFileError(
-            f"{shown}: not UTF-8 text (byte 0x{e.object[e.start]:02x} at offset {e.start}); "
-            "a motion file is tab-separated text"
-        ) from None
+    text = read_text(path, "motion", MotionFileError, "a motion file is tab-separated text")
     lines = text.splitlines()
 
     def fail(line: int, message: str) -> MotionFileError:

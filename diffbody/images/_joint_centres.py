@@ -88,7 +88,7 @@ def load_walk_joints() -> tuple[np.ndarray, np.ndarray]:
     """(times (151,) s, joints (151, 15, 3) m, world frame) of the OpenSim example walk, as
     `joint_centres_from_markers` gives them, from data/webb/walk1_joints.csv (no marker
     files needed)."""
-    from ..files._body_file import data_file
+    from ..files._data_files import data_array
 
-    data = np.loadtxt(data_file("webb/walk1_joints.csv"), delimiter=",", skiprows=3)
+    data = data_array("webb/walk1_joints.csv", header_lines=3)
     return data[:, 1], data[:, 2:].reshape(len(data), len(NAMES), 3)

@@ -17,17 +17,13 @@ is a joint or a feature of the body (``diffbody info --names``) lets the body gi
 position (synthetic sequences, joint limits).
 """
 
-import json
-from pathlib import Path
-
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from .._body import Body, rest_geometry, unknown_name_error
-
-FORMAT = "diffbody.joint_tree/1"
+from ..files._skeleton_file import read_skeleton, write_skeleton
 
 DEFAULT_JOINTS: tuple[tuple[str, str | None], ...] = (
     ("center_hip", None),
@@ -195,50 +191,18 @@ def default_joint_tree() -> JointTree:
 
 
 def read_joint_tree(path) -> JointTree:
-    """A skeleton file (module docstring); errors name the file, the entry and the field."""
-    path = Path(path)
-    if path.is_dir():
-        raise ValueError(f"{path}: is a directory; expected a skeleton JSON file")
+    """A skeleton file (`diffbody.files.read_skeleton`); errors name the file, the entry and
+    the field."""
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise ValueError(f"{path}: not UTF-8 text; save the skeleton as UTF-8 JSON") from None
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: not valid JSON: {e.msg} at line {e.lineno} column {e.colno}")
-    example = '{"joints": [{"name": "center_hip", "parent": null}, ...]}'
-    if not isinstance(doc, dict) or not isinstance(doc.get("joints"), list):
-        raise ValueError(f"{path}: expected an object with a list 'joints', e.g. {example}")
-    fmt = doc.get("format", FORMAT)
-    if fmt != FORMAT:
-        raise ValueError(f"{path}: field 'format': expected {FORMAT!r}, got {fmt!r}")
-    joints = []
-    for i, entry in enumerate(doc["joints"]):
-        where = f"{path}: joints[{i}]"
-        if not isinstance(entry, dict) or set(entry) != {"name", "parent"}:
-            raise ValueError(
-                f"{where}: expected exactly the fields 'name' and 'parent', got {entry!r}"
-            )
-        name, parent = entry["name"], entry["parent"]
-        if not isinstance(name, str):
-            raise ValueError(f"{where}, field 'name': expected a string, got {name!r}")
-        if parent is not None and not isinstance(parent, str):
-            raise ValueError(
-                f"{where} ({name!r}), field 'parent': expected a joint name or null, got {parent!r}"
-            )
-        joints.append((name, parent))
-    try:
-        return JointTree.from_parent_names(joints, str(path))
+        return JointTree.from_parent_names(read_skeleton(path), str(path))
     except KeyError as e:
         raise ValueError(e.args[0]) from None
 
 
 def write_joint_tree(tree: JointTree, path) -> None:
     """Write a skeleton file that `read_joint_tree` reads back."""
-    joints = [
-        {"name": n, "parent": None if p == -1 else tree.names[p]}
-        for n, p in zip(tree.names, tree.parents)
-    ]
-    Path(path).write_text(json.dumps({"format": FORMAT, "joints": joints}, indent=1) + "\n")
+    parents = [None if p == -1 else tree.names[p] for p in tree.parents]
+    write_skeleton(list(zip(tree.names, parents)), path)
 
 
 # --- the tree on a body ---------------------------------------------------------------------

@@ -18,9 +18,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from ..files._webb_files import FAR, NEAR
 from ._joint_tree import JointTree
 
-NEAR, FAR, MISSED = 0, 1, -1  # reflection codes; MISSED: the ray missed, formula (1) used
+MISSED = -1  # a reflection code beside NEAR and FAR: the ray missed, formula (1) used
 
 
 class WebbResult(eqx.Module):

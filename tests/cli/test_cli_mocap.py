@@ -10,7 +10,7 @@ from diffbody._joint_angles import angle_names
 from diffbody.cli import main
 from diffbody.files._data_files import data_file
 from diffbody.files._motion_files import read_mot
-from diffbody.fitting._trc import read_trc, write_trc
+from diffbody.files._trc import read_trc, write_trc
 
 
 def test_mocap_is_a_command(capsys):

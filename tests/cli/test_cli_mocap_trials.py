@@ -24,7 +24,7 @@ import diffbody as db
 from diffbody.cli import main
 from diffbody.files import structure_hash
 from diffbody.files._data_files import data_file
-from diffbody.fitting._trc import read_trc, write_trc
+from diffbody.files._trc import read_trc, write_trc
 
 COLUMNS = "trial,sha256,frames,markers,status,converged,marker_rms_m,notes\n"
 

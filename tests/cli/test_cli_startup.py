@@ -20,7 +20,14 @@ def test_import_diffbody_loads_no_family_and_no_matplotlib():
         [sys.executable, "-c", LOADED], capture_output=True, text=True, timeout=300, check=True
     )
     loaded = set(run.stdout.split())
-    for name in ("diffbody.images", "diffbody.fitting", "diffbody.ik", "optimistix", "matplotlib"):
+    for name in (
+        "diffbody.images",
+        "diffbody.mocap",
+        "diffbody.clouds",
+        "diffbody.ik",
+        "optimistix",
+        "matplotlib",
+    ):
         assert name not in loaded, name
     assert "diffbody._kinematics" in loaded  # the core is there at once
 

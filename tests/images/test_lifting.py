@@ -255,7 +255,7 @@ def test_semi_real_walk_joints(tree):
     root = Path(__file__).resolve().parents[2] / "data" / "mocap"
     if not (root / "subject01_walk1.trc").exists():
         pytest.skip("data/mocap is not in this checkout")
-    from diffbody.fitting._trc import read_trc
+    from diffbody.files._trc import read_trc
 
     fresh = joint_centres_from_markers(
         read_trc(root / "subject01_walk1.trc"), read_trc(root / "subject01_static.trc")

@@ -14,15 +14,16 @@ import pytest
 import diffbody as db
 from diffbody._body import rest_geometry
 from diffbody._joint_angles import joint_angles
+from diffbody.clouds._cloud_fit import FitStatus
 from diffbody.files._data_files import data_file
-from diffbody.fitting._marker_layout import mocap_layout
-from diffbody.fitting._marker_trial import LAB_AXES, MarkerFileError
-from diffbody.fitting._markers import c3d_screen_axes, read_c3d, read_markers
-from diffbody.fitting._markerset import load_markerset, world_markers
-from diffbody.fitting._motion_fit import fit_motion
-from diffbody.fitting._sphere_fit import FitStatus
-from diffbody.fitting._trc import read_trc
+from diffbody.files._marker_files import c3d_screen_axes, read_c3d, read_markers
+from diffbody.files._marker_trial import LAB_AXES, MarkerFileError
+from diffbody.files._markerset_file import load_markerset
+from diffbody.files._trc import read_trc
 from diffbody.ik._problem import make_problem
+from diffbody.mocap._marker_layout import mocap_layout
+from diffbody.mocap._markerset import world_markers
+from diffbody.mocap._motion_fit import fit_motion
 
 ezc3d = pytest.importorskip("ezc3d")
 

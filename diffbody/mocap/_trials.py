@@ -295,8 +295,8 @@ def fit_trials(
     if signals is None:
         with Interrupts() as own:
             return fit_trials(**{**arguments, "signals": own})
-    from ._markers import read_markers
-    from ._opensim_files import read_ik_tasks
+    from ..files._marker_files import read_markers
+    from ..files._opensim_files import read_ik_tasks
 
     unknown = [o for o in outputs if o not in OUTPUTS]
     if unknown:
@@ -405,7 +405,7 @@ def fit_trials(
 
 def _fit_one(path, static_fit, weights_of, tasks, time, axes, zero_is_gap, progress, log):
     """One trial's `MotionFit` and its trial (the markers matched to the set)."""
-    from ._markers import read_markers
+    from ..files._marker_files import read_markers
     from ._markerset import match_markers
     from ._motion_fit import fit_motion
 

@@ -1,5 +1,5 @@
 """The start search of a sphere-cloud fit without correspondences
-(diffbody.fitting._cloud_start) and how a fit that cannot land says so."""
+(diffbody.clouds._cloud_start) and how a fit that cannot land says so."""
 
 import jax
 import jax.numpy as jnp
@@ -8,9 +8,9 @@ import pytest
 
 import diffbody as db
 from diffbody.anthropometry._scaling import per_segment
-from diffbody.fitting._cloud_start import search_spheres, search_tables
-from diffbody.fitting._sphere_fit import LANDED_INLIERS
-from diffbody.fitting._sphere_residuals import FIT_NAMES, fit_layout
+from diffbody.clouds._cloud_fit import LANDED_INLIERS
+from diffbody.clouds._cloud_residuals import FIT_NAMES, fit_layout
+from diffbody.clouds._cloud_start import search_spheres, search_tables
 
 SPREAD = 0.3  # posture spread, as a user's clouds (benchmarks/_sphere_cloud.py)
 LANDED = 0.002  # m: a fit lands when its mean segment-length error is below this
@@ -120,7 +120,7 @@ def test_a_batch_kept_in_a_folder_resumes_after_an_interrupt(fits, male50, tmp_p
     compiled size; an interrupt in the second keeps the first (`Interrupted` says so);
     resume=True reads it and fits the second: every cloud as the fixture's one call fits
     it. Other clouds are refused by name."""
-    import diffbody.fitting._sphere_fit as sphere_fit
+    import diffbody.clouds._cloud_fit as sphere_fit
     from diffbody._streaming import Interrupted
 
     fit, _ = fits

@@ -17,17 +17,11 @@ from hypothesis import given
 import diffbody as db
 from diffbody._body import rest_geometry
 from diffbody.files._data_files import data_file
-from diffbody.fitting._marker_trial import LAB_AXES, MarkerFileError, MarkerTrial
-from diffbody.fitting._markers import read_c3d, read_markers
-from diffbody.fitting._markerset import (
-    MarkerSet,
-    MarkerWarning,
-    load_markerset,
-    match_markers,
-    scale_offsets,
-    world_markers,
-)
-from diffbody.fitting._trc import read_trc, write_trc
+from diffbody.files._marker_files import read_c3d, read_markers
+from diffbody.files._marker_trial import LAB_AXES, MarkerFileError, MarkerTrial
+from diffbody.files._markerset_file import MarkerSet, load_markerset
+from diffbody.files._trc import read_trc, write_trc
+from diffbody.mocap._markerset import MarkerWarning, match_markers, scale_offsets, world_markers
 
 STATIC = data_file("mocap/subject01_static.trc")
 WALK = data_file("mocap/subject01_walk1.trc")

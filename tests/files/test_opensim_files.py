@@ -1,4 +1,4 @@
-"""OpenSim's set-up files (diffbody.fitting._opensim_files): the IK task set of the shipped
+"""OpenSim's set-up files (diffbody.files._opensim_files): the IK task set of the shipped
 set-up and of written files, the marker set of a marker-set file and of a model and where its
 markers land on the default body against opensim-gait.json (the shipped walk fitted with it
 against opensim-gait.json: benchmarks/mocap.py)."""
@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 
 from diffbody.files._data_files import data_file
-from diffbody.fitting._marker_trial import MarkerFileError
-from diffbody.fitting._markerset import load_markerset, world_markers
-from diffbody.fitting._opensim_files import (
+from diffbody.files._marker_trial import MarkerFileError
+from diffbody.files._markerset_file import load_markerset
+from diffbody.files._opensim_files import (
     OPENSIM_BODIES,
     load_opensim_markerset,
     read_ik_tasks,
 )
+from diffbody.mocap._markerset import world_markers
 
 SETUP_IK = data_file("mocap/subject01_Setup_IK.xml")
 MARKERSET_XML = data_file("mocap/gait2354_Scale_MarkerSet.xml")
@@ -94,7 +95,7 @@ def test_a_task_set_file(tmp_path):
 @pytest.mark.parametrize(
     "content, message",
     [
-        (None, r"missing\.xml: no such file"),
+        (None, r"missing\.xml: no such OpenSim IK set-up or task set file"),
         ("<OpenSimDocument>\n<IKTaskSet>\n</OpenSimDocument>\n", r"bad\.xml: line 3, column"),
         ("<OpenSimDocument><Model/></OpenSimDocument>", r"no <IKTaskSet> in the document"),
         (task_set("<IKMarkerTask><weight>1</weight></IKMarkerTask>"), r"task 0 .*'name': missing"),
@@ -108,7 +109,9 @@ def test_bad_task_sets(tmp_path, content, message):
     path = tmp_path / ("missing.xml" if content is None else "bad.xml")
     if content is not None:
         path.write_text(content)
-    with pytest.raises(MarkerFileError, match=message):
+    # A missing file is a FileNotFoundError, as for every reader (files/_data_files.read_text).
+    error = FileNotFoundError if content is None else MarkerFileError
+    with pytest.raises(error, match=message):
         read_ik_tasks(path)
 
 

@@ -25,19 +25,20 @@ from diffbody._joint_angles import joint_angles, opensim_sign
 from diffbody._rotations import exp_rotvec
 from diffbody.anthropometry._scale_to import LENGTHS, linear_model_jit
 from diffbody.anthropometry._scaling import N_GROUPS, SCALE_GROUPS, per_segment
+from diffbody.clouds._cloud_fit import FitStatus
 from diffbody.files._data_files import data_file
+from diffbody.files._marker_trial import MarkerTrial
+from diffbody.files._markerset_file import load_markerset
 from diffbody.files._motion_files import read_mot, write_mot
-from diffbody.fitting._marker_layout import mocap_layout, rigid_fit, rotation_vector
-from diffbody.fitting._marker_points import tree_markers
-from diffbody.fitting._marker_trial import MarkerTrial
-from diffbody.fitting._markerset import MarkerWarning, load_markerset, scale_offsets, world_markers
-from diffbody.fitting._mocap_solver import MIN_MARKERS, robust_rows
-from diffbody.fitting._motion_fit import FRAME_STEPS, fit_motion
-from diffbody.fitting._motion_limits import MOTION_RANGES, motion_limits
-from diffbody.fitting._sphere_fit import FitStatus
-from diffbody.fitting._static_fit import PRIOR_MEASUREMENTS, population_prior, scale_and_register
 from diffbody.ik._points import walk_points
 from diffbody.ik._problem import make_problem
+from diffbody.mocap._marker_layout import mocap_layout, rigid_fit, rotation_vector
+from diffbody.mocap._marker_points import tree_markers
+from diffbody.mocap._markerset import MarkerWarning, scale_offsets, world_markers
+from diffbody.mocap._mocap_solver import MIN_MARKERS, robust_rows
+from diffbody.mocap._motion_fit import FRAME_STEPS, fit_motion
+from diffbody.mocap._motion_limits import MOTION_RANGES, motion_limits
+from diffbody.mocap._static_fit import PRIOR_MEASUREMENTS, population_prior, scale_and_register
 
 N_FRAMES = 4
 NOISE = 0.005  # m, per coordinate

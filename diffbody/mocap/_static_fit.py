@@ -23,12 +23,13 @@ from .._programs import compiled
 from .._solver import FitStatus, solve
 from ..anthropometry._prior import PopulationPrior
 from ..anthropometry._scale_to import LENGTHS, linear_model_jit
-from ..anthropometry._scaling import N_GROUPS, per_segment
+from ..anthropometry._scaling import N_GROUPS, log_scaled, per_segment
+from ..files._marker_trial import MarkerTrial
+from ..files._markerset_file import MarkerSet
 from ..ik._problem import Problem, make_problem
 from ._marker_layout import MocapLayout, mocap_layout, rigid_start
 from ._marker_points import model_markers, tree_markers
-from ._marker_trial import MarkerTrial
-from ._markerset import MarkerSet, match_markers, scale_offsets
+from ._markerset import match_markers, scale_offsets
 from ._mocap_solver import (
     MIN_MARKERS,
     PULL,
@@ -38,7 +39,6 @@ from ._mocap_solver import (
     solver,
 )
 from ._motion_limits import LIMITS, motion_limits
-from ._sphere_residuals import scaled
 
 FIT_CHOICES = ("lengths", "radii", "offsets")
 # The prior's spread of each group's scale factor around the template's proportions: the
@@ -276,7 +276,7 @@ def scale_and_register(
     )
     out = _fit_static_jit(template, lay, rest, state)
     pose, log_axial, log_radial, offsets, errors, status, steps = out
-    scaled_body = scaled(body, log_axial, log_radial)
+    scaled_body = log_scaled(body, log_axial, log_radial)
     scaled_body = dataclasses.replace(
         scaled_body, name=f"{body.name}-scaled", source="diffbody.scale_and_register"
     )

@@ -1,4 +1,4 @@
-"""Fitting dimensions and posture to measured sphere clouds (diffbody.fitting._sphere_fit)."""
+"""Fitting dimensions and posture to measured sphere clouds (diffbody.clouds._cloud_fit)."""
 
 import jax
 import jax.numpy as jnp
@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 import diffbody as db
 from diffbody.anthropometry._scaling import per_segment
 from diffbody.cli._main import main
-from diffbody.fitting._sphere_residuals import softassign, squared_distances
+from diffbody.clouds._cloud_residuals import softassign, squared_distances
 
 
 def scaled_person(body, key, spread=0.05):

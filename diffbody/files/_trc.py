@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._data_files import read_text
 from ._marker_trial import (
     UNIT_EXPONENTS,
     MarkerFileError,
@@ -129,15 +130,7 @@ def read_trc(
     """
     R = lab_rotation("opensim" if axes is None else axes)
     shown = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{shown}: no such marker file") from None
-    except UnicodeDecodeError as e:
-        raise MarkerFileError(
-            f"{shown}: not UTF-8 text (byte 0x{e.object[e.start]:02x} at offset {e.start}); "
-            "a TRC file is tab-separated text"
-        ) from None
+    text = read_text(path, "marker", MarkerFileError, "a TRC file is tab-separated text")
     lines = text.splitlines()
 
     def fail(line: int, message: str, col: int | None = None, what: str = "") -> MarkerFileError:

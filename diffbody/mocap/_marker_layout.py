@@ -11,8 +11,8 @@ from jaxtyping import Array, Float
 
 from .._body import Body
 from ..anthropometry._scaling import N_GROUPS
-from ..ik._unknowns import Layout, make_layout, path_to_top
-from ._markerset import MarkerSet
+from ..files._markerset_file import MarkerSet
+from ..ik._unknowns import Layout, make_layout
 
 
 # --- the unknowns ------------------------------------------------------------------------------
@@ -54,7 +54,7 @@ def mocap_layout(body: Body, markerset: MarkerSet, fit: tuple[str, ...] = ()) ->
     markers, are neither walked nor moved); the spine as its Bendspine target; the whole
     body's placement. `fit`: the static fit's further unknowns (`_static_fit.FIT_CHOICES`)."""
     marked = sorted(set(markerset.segments))
-    paths = {m: path_to_top(body, m) for m in marked}
+    paths = {m: body.path_to_top(m) for m in marked}
     movable = {s for path in paths.values() for s in path}
     points = [body.distal_joint[m] for m in marked]
     pose = make_layout(body, points, [], movable, spine=body.spine is not None, root=True)
@@ -109,9 +109,9 @@ def rotation_vector(R: Float[Array, "3 3"]) -> Float[Array, "3"]:
     return q[1:] * angle_over_s
 
 
-def rigid_markers(body: Body, paths: list[list[int]]) -> tuple[bool, ...]:
+def rigid_markers(body: Body, paths: list[tuple[int, ...]]) -> tuple[bool, ...]:
     """Per marker, whether it rides on the whole body rigidly, from its segment's path to the
-    top (`path_to_top`): no segment on the path has a range of motion (the pelvis of the
+    top (`Body.path_to_top`): no segment on the path has a range of motion (the pelvis of the
     default body) or is moved by the spine."""
     spine = set(body.spine.segment_names) if body.spine is not None else set()
     ranges = np.concatenate(
@@ -122,7 +122,7 @@ def rigid_markers(body: Body, paths: list[list[int]]) -> tuple[bool, ...]:
         axis=1,
     )
 
-    def rigid(path: list[int]) -> bool:
+    def rigid(path: tuple[int, ...]) -> bool:
         return all(
             np.all(ranges[p] == 0) and body.segment_names[p] not in spine
             for p in path[:-1]  # without the whole body

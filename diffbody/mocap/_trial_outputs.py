@@ -26,10 +26,10 @@ def load_any_markerset(name_or_path: str, body):
     """A shipped or JSON marker set (`load_markerset`), or an OpenSim one (.xml, .osim:
     `load_opensim_markerset`)."""
     if str(name_or_path).lower().endswith((".xml", ".osim")):
-        from ._opensim_files import load_opensim_markerset
+        from ..files._opensim_files import load_opensim_markerset
 
         return load_opensim_markerset(name_or_path, body)
-    from ._markerset import load_markerset
+    from ..files._markerset_file import load_markerset
 
     return load_markerset(name_or_path, body)
 
@@ -92,9 +92,9 @@ def save_scaled_body(body, path: str | Path) -> Path:
 def save_fit(path: str | Path, scaled, static_fit, fit, trial) -> Path:
     """A motion fit as a pose file (.npz), written whole: the scaled body's poses, times,
     statuses, per-frame residuals, the measured markers as overlays, the model markers."""
+    from .._solver import FitStatus
     from ..anthropometry._scaling import SCALE_GROUPS
     from ..files._pose_file import save_pose
-    from ._sphere_fit import FitStatus
 
     per_marker = fit.per_marker()
     with written_whole(path) as tmp:
@@ -135,8 +135,8 @@ def save_angles(path: str | Path, fit, scaled, name: str) -> Path:
 
 def save_model_markers(path: str | Path, fit, trial, axes: str) -> Path:
     """The model's markers of every frame as a TRC file in the lab axes `axes`."""
-    from ._marker_trial import MarkerTrial
-    from ._trc import write_trc
+    from ..files._marker_trial import MarkerTrial
+    from ..files._trc import write_trc
 
     model = MarkerTrial(fit.names, fit.times, fit.markers, trial.rate, str(path))
     with written_whole(path) as tmp:
@@ -212,7 +212,7 @@ def trial_outputs(out_dir: Path, name: str, options) -> list[Path]:
 def trial_cells(fit) -> list[str]:
     """A fitted trial's row after its name and sha256: frames, markers, status, frames
     converged, the inliers' marker RMS (m) and the faulty markers."""
-    from ._sphere_fit import FitStatus
+    from .._solver import FitStatus
 
     status = np.asarray(fit.status)
     converged = int(np.sum(status == FitStatus.CONVERGED))

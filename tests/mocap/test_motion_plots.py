@@ -8,8 +8,8 @@ import pytest
 
 import diffbody as db
 from diffbody._solver import FitStatus
-from diffbody.fitting._motion_fit import MotionFit, _rms_max
-from diffbody.fitting._motion_plots import draw_motion, joint_groups
+from diffbody.mocap._motion_fit import MotionFit, _rms_max
+from diffbody.mocap._motion_plots import draw_motion, joint_groups
 
 N = 6  # frames
 

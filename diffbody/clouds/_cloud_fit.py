@@ -28,9 +28,8 @@ from .._programs import compiled
 from .._solver import FitStatus, least_squares_solver, solve, tolerance
 from .._spine import spine_angles
 from .._streaming import tree_hash
-from ._cloud_start import search_start, search_tables
-from ._clouds import check_correspondences, check_spheres
-from ._sphere_residuals import (
+from ..anthropometry._scaling import log_scaled
+from ._cloud_residuals import (
     FIT_NAMES,
     Cloud,
     FitLayout,
@@ -40,10 +39,11 @@ from ._sphere_residuals import (
     pack,
     pairs_at,
     residual_distances,
-    scaled,
     squared_distances,
     stage_residuals,
 )
+from ._cloud_start import search_start, search_tables
+from ._clouds import check_correspondences, check_spheres
 
 INLIER_DISTANCE = 0.03  # m: a measured sphere this close to its model sphere is an inlier
 # A fit lands when at least this share of the measured spheres are inliers: a landed fit of a
@@ -274,7 +274,7 @@ def _cloud(dtype, measured: np.ndarray, match: np.ndarray | None) -> Cloud:
 def _result(body: Body, template: Body, out) -> SphereFit:
     pose, log_axial, log_radial, distances, status, steps = out
     inliers = distances < INLIER_DISTANCE
-    fitted = jax.vmap(scaled, in_axes=(None, 0, 0)) if log_axial.ndim == 2 else scaled
+    fitted = jax.vmap(log_scaled, in_axes=(None, 0, 0)) if log_axial.ndim == 2 else log_scaled
     # Named before scaling: a batch of bodies is no valid argument of Body's constructor.
     name = dict(name=f"{body.name}-fitted", source="diffbody.fit_spheres")
     template = dataclasses.replace(template, **name)

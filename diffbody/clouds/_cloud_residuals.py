@@ -17,7 +17,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._body import Body, Pose
-from ..anthropometry._scaling import N_GROUPS, per_segment, scale_body
+from ..anthropometry._scaling import N_GROUPS, log_scaled
 from ..ik._points import tree_points
 from ..ik._problem import Problem, make_problem
 from ..ik._unknowns import Layout, whole_tree_layout
@@ -78,19 +78,12 @@ def make_start(template: Body, lay: FitLayout, init: Pose) -> Start:
     return Start(problem, problem.x0, zeros, zeros)
 
 
-def scaled(template: Body, log_axial: Array, log_radial: Array) -> Body:
-    """The template with the group scale factors exp(log_axial), exp(log_radial)."""
-    axial = per_segment(template, jnp.exp(log_axial))
-    radial = per_segment(template, jnp.exp(log_radial))
-    return scale_body(template, axial, radial)
-
-
 def model_spheres(start: Start, lay: FitLayout, z: Array) -> Float[Array, "n_sph 4"]:
     """World centres and radii (m) of the model's spheres for the unknowns z: the point
     kernel (one walk, closed-form derivatives) on the template's problem with the scaled
     lengths and sphere origins."""
     x, log_axial, log_radial = lay.split(z, start)
-    body = scaled(start.problem.body, log_axial, log_radial)
+    body = log_scaled(start.problem.body, log_axial, log_radial)
     chain = lay.pose.chain
     slots = tuple(chain.position(int(s)) for s in body.sphere_segment)
     origins = body.sphere_origins

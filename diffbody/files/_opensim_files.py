@@ -24,8 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from .._body import Body, rest_geometry
+from ._data_files import read_text
 from ._marker_trial import LAB_AXES, MarkerFileError
-from ._markerset import (
+from ._markerset_file import (
     DEFAULT_MARKER_RADIUS,
     MarkerEntry,
     MarkerSet,
@@ -150,10 +151,9 @@ def _parse(path, what: str) -> tuple[str, ET.Element]:
     """(the path as shown, the root element); a missing file or bad XML is a
     `MarkerFileError` naming the file and the line."""
     shown = str(path)
-    if not Path(path).is_file():
-        raise MarkerFileError(f"{shown}: no such file; give the path of an OpenSim {what}")
+    text = read_text(path, f"OpenSim {what}", MarkerFileError, f"an OpenSim {what} is XML")
     try:
-        return shown, ET.parse(path).getroot()
+        return shown, ET.fromstring(text)
     except ET.ParseError as e:
         line, col = e.position
         raise MarkerFileError(
@@ -215,11 +215,11 @@ def read_ik_tasks(path) -> dict[str, float]:
     gives the markers a mapping does not name weight 0, as OpenSim does. `<IKCoordinateTask>`s
     are ignored: diffbody's posture has no OpenSim coordinates to hold.
 
-    Every error is a `MarkerFileError` naming the file, the task and the field: no file, not
-    XML (with the line), no `<IKTaskSet>`, a task without a name, a weight that is not a
-    finite number >= 0.
+    A missing file is a FileNotFoundError; every other error is a `MarkerFileError` naming the
+    file, the task and the field: not XML (with the line), no `<IKTaskSet>`, a task without a
+    name, a weight that is not a finite number >= 0.
     """
-    shown, root = _parse(path, "IK task set or IK set-up file")
+    shown, root = _parse(path, "IK set-up or task set")
     tasks = _one(shown, root, "IKTaskSet", "IK task set or IK set-up file")
     if tasks.get("file") and tasks.find("objects") is None:
         # A set-up may name its task set's file instead of holding it.

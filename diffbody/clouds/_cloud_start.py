@@ -31,7 +31,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._body import Body
-from ._sphere_residuals import Cloud, FitLayout, Start, model_spheres, pack
+from ._cloud_residuals import Cloud, FitLayout, Start, model_spheres, pack
 
 YAWS = 8  # headings tried: every 45 degrees (the root group turns by +-0.3 rad)
 KEEP = 3  # headings whose posture is searched

@@ -24,10 +24,11 @@ from .._body import Body, Pose, without_names
 from .._joint_angles import angle_names, joint_angles
 from .._programs import compiled
 from .._solver import FitStatus, Solved, solve
+from ..files._marker_trial import MarkerTrial
+from ..files._markerset_file import MarkerSet
 from ._marker_layout import mocap_layout, rigid_start
 from ._marker_points import model_markers
-from ._marker_trial import MarkerTrial
-from ._markerset import MarkerSet, MarkerWarning, match_markers
+from ._markerset import MarkerWarning, match_markers
 from ._mocap_solver import (
     MIN_MARKERS,
     OUTLIER_SCALES,
