@@ -30,7 +30,7 @@ from ._posture import apply_standard_orientation, pose_from_joint_positions
 from ._programs import keep_compiled
 from ._render import draw, draw_cloud, render
 from ._spine import BendResult, bend_pose, bendspine, movespine, spine_angles, with_spine_angles
-from ._streaming import Interrupted
+from .runs._streaming import Interrupted
 
 # A later process reads back what this one compiles (docs/design.md, section 3, "Programs").
 keep_compiled()
@@ -114,13 +114,20 @@ _FAMILIES = {
         "scale_offsets",
         "world_markers",
     ),
-    "ik": ("BatchRun", "ReachResult", "ReachStatus", "Target", "solve_reach", "solve_reach_batch"),
+    "ik": (
+        "BatchRun",
+        "ReachResult",
+        "ReachStatus",
+        "Target",
+        "run_reach_batch",
+        "solve_reach",
+        "solve_reach_batch",
+    ),
     "images": (
         "ImageSequence",
         "JointTree",
         "Lifting",
         "LiftOptions",
-        "LiftStatus",
         "Pinhole",
         "ReflectionChoice",
         "WebbResult",
@@ -231,13 +238,20 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         write_mot,
         write_trc,
     )
-    from .ik import BatchRun, ReachResult, ReachStatus, Target, solve_reach, solve_reach_batch
+    from .ik import (
+        BatchRun,
+        ReachResult,
+        ReachStatus,
+        Target,
+        run_reach_batch,
+        solve_reach,
+        solve_reach_batch,
+    )
     from .images import (
         ImageSequence,
         JointTree,
         Lifting,
         LiftOptions,
-        LiftStatus,
         Pinhole,
         ReflectionChoice,
         WebbResult,
@@ -284,7 +298,6 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
 __version__ = "0.1.0"
 
 __all__ = [
-    # Body & loading
     "Body",
     "Pose",
     "Spine",
@@ -292,16 +305,13 @@ __all__ = [
     "load_body",
     "load_spine",
     "save_body",
-    # Pose files
     "PoseFileError",
     "PoseRecord",
     "load_pose",
     "save_pose",
-    # Kinematics
     "Kinematics",
     "forward",
     "pose_from_joint_positions",
-    # Orientation & local frames
     "azimuth_polar_to_inclination_azimuth",
     "azimuth_polar_to_vector",
     "inclination_azimuth_to_azimuth_polar",
@@ -316,21 +326,17 @@ __all__ = [
     "local_frame",
     "local_frames",
     "smooth_reference",
-    # Limits
     "STOP_COLUMNS",
     "angles_from_swing",
     "stop_violation",
     "swing_vector",
     "within_limits",
-    # Spine
     "BendResult",
     "bend_pose",
     "bendspine",
     "movespine",
     "spine_angles",
     "with_spine_angles",
-    # Reach
-    # Contact and balance
     "Contact",
     "ContactReport",
     "Environment",
@@ -341,10 +347,9 @@ __all__ = [
     "Target",
     "solve_reach",
     "solve_reach_batch",
-    # Long runs: a batch written to a file as it goes
+    "run_reach_batch",
     "BatchRun",
     "Interrupted",
-    # Anthropometry
     "MEASUREMENTS",
     "MEASUREMENT_NAMES",
     "measure",
@@ -356,14 +361,12 @@ __all__ = [
     "scale_population",
     "scale_to",
     "scale_to_percentile",
-    # Sphere-cloud fitting
     "FitStatus",
     "SphereFit",
     "fit_spheres",
     "fit_spheres_batch",
     "sample_pose",
     "synthetic_cloud",
-    # Motion capture: marker files and marker sets
     "LAB_AXES",
     "MarkerFileError",
     "MarkerTrial",
@@ -387,7 +390,6 @@ __all__ = [
     "draw_motion",
     "descriptors",
     "motion_limits",
-    # Motion capture: OpenSim's files and joint angles
     "load_opensim_markerset",
     "read_ik_tasks",
     "joint_angles",
@@ -396,7 +398,6 @@ __all__ = [
     "MotionFileError",
     "read_mot",
     "write_mot",
-    # Image sequences (seed 003)
     "JointTree",
     "default_joint_tree",
     "read_joint_tree",
@@ -418,7 +419,6 @@ __all__ = [
     "ReflectionChoice",
     "choose_reflections",
     "LiftOptions",
-    "LiftStatus",
     "Lifting",
     "refine",
     "lift",
@@ -428,7 +428,6 @@ __all__ = [
     "draw_bounds",
     "draw_sequence_fit",
     "reprojection_errors",
-    # Export
     "export_mjcf",
     "export_urdf",
     "mujoco_joint_names",
@@ -436,11 +435,9 @@ __all__ = [
     "mujoco_qpos_slices",
     "SingularJointsWarning",
     "urdf_joint_values",
-    # Viewing and animations
     "Viewer",
     "view",
     "animate",
-    # Rendering
     "draw",
     "draw_cloud",
     "render",

@@ -10,6 +10,7 @@ explicit: segment 0 is always "whole_body" and joint 0 always "center_of_gravity
 
 import dataclasses
 import difflib
+from collections.abc import Iterable
 
 import equinox as eqx
 import jax
@@ -24,6 +25,11 @@ CENTER_OF_GRAVITY = "center_of_gravity"
 CENTER_OF_GRAVITY_INDEX = 0  # joint 0: translates the whole body
 # Columns of a pose's angle array.
 THETA, PHI, TAU = 0, 1, 2
+# The parts the solver gives a role are found by these endings of their names, the default
+# human body's ("left_foot", "right_thigh"): a child's or a robot's body takes a role by
+# naming its segments so. `Body.feet`: the segments standing on the floor; `Body.thighs`:
+# the legs' tops, below which a standing body's knees and ankles are stiff.
+FOOT, THIGH = "_foot", "_thigh"
 
 
 def unknown_name_error(kind: str, name: str, valid: tuple[str, ...]) -> KeyError:
@@ -166,6 +172,44 @@ class Body(eqx.Module):
         """Names of the segments hanging from a segment's distal joint."""
         i = self.segment_index(name)
         return tuple(n for n, p in zip(self.segment_names, self.parent) if p == i)
+
+    # --- the tree and the roles of its parts (host side, from the static structure) -------
+    # Plain methods, not cached properties: equinox puts a cached property's value in the
+    # pytree's structure, so caching would change `jax.tree.structure(body)` (a new program
+    # for the same body, a new `tree_hash`). Each costs microseconds on a body's tree.
+    def path_to_top(self, seg: int) -> tuple[int, ...]:
+        """The segment and its ancestors, from it up to the whole body."""
+        path = []
+        while seg >= 0:
+            path.append(seg)
+            seg = self.parent[seg]
+        return tuple(path)
+
+    def below(self, segments: Iterable[int]) -> frozenset[int]:
+        """The segments hanging from `segments`, directly or further down (not themselves)."""
+        top = set(segments)
+        return frozenset(s for s in range(self.n_segments) if top & set(self.path_to_top(s)[1:]))
+
+    @property
+    def trunk(self) -> frozenset[int]:
+        """The whole body, the spine's segments (the vertebrae and the neck) and every
+        segment above them (the pelvis); the whole body alone without a spine database.
+        The limbs are what hangs from it."""
+        names = () if self.spine is None else self.spine.segment_names
+        paths = [self.path_to_top(self.segment_index(n)) for n in names]
+        return frozenset({0}.union(*paths))
+
+    @property
+    def feet(self) -> tuple[int, ...]:
+        """The segments a standing body stands on, in segment order: those whose names end
+        in `FOOT` ("left_foot", "right_foot")."""
+        return tuple(i for i, n in enumerate(self.segment_names) if n.endswith(FOOT))
+
+    @property
+    def thighs(self) -> tuple[int, ...]:
+        """The tops of the legs, in segment order: the segments whose names end in `THIGH`
+        ("left_thigh", "right_thigh"); `below(thighs)` are the shanks and the feet."""
+        return tuple(i for i, n in enumerate(self.segment_names) if n.endswith(THIGH))
 
     @property
     def local_directions(self) -> Float[Array, "n_seg 3 3"]:

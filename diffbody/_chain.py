@@ -20,9 +20,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-# Unrolled or scanned: unrolling level by level runs about 1.5x faster and compiles in about
-# the same time for the short chains of a solver; the whole body's 25 levels compile 2-3x
-# slower unrolled (README, benchmarks/fk.py), so long chains are scanned.
+# Unrolled or scanned: a solver's short chains are unrolled level by level, faster to run at
+# the same compile time; the whole body's levels are scanned, faster to compile
+# (docs/benchmarks.md, "Forward kinematics and Bendspine").
 UNROLL_LEVELS = 8
 
 

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._body import Body, Pose, without_names
+from ._body_cache import BodyCache
 from ._kinematics import forward, pose_frames
 from ._local_frames import bone_descriptors
 from ._orientation import vector_to_azimuth_polar
@@ -30,17 +31,17 @@ def _one(body: Body, pose: Pose) -> tuple[jax.Array, jax.Array]:
 
 
 _many_jit = eqx.filter_jit(jax.vmap(_one, in_axes=(None, 0)))
-_BONE_DESCRIPTORS_MANY: dict = {}
+# Keyed by the structure and the standard frames, all that `bone_descriptors` reads.
+_BONE_DESCRIPTORS_MANY = BodyCache(("R_socket_rest",), size=16)
 
 
 def _bone_descriptors_many(body: Body):
     """`bone_descriptors` over frames, compiled once per body: seed 001's frames read the
     body's standard position on the host, so the body is a constant of the compiled
-    function (keyed by its structure and standard frames)."""
-    key = (jax.tree.structure(body), np.asarray(body.R_socket_rest).tobytes())
-    if key not in _BONE_DESCRIPTORS_MANY:
-        _BONE_DESCRIPTORS_MANY[key] = jax.jit(jax.vmap(lambda p: bone_descriptors(body, p)))
-    return _BONE_DESCRIPTORS_MANY[key]
+    function."""
+    return _BONE_DESCRIPTORS_MANY.get(
+        body, None, lambda: jax.jit(jax.vmap(lambda p: bone_descriptors(body, p)))
+    )
 
 
 def _near(value, reference):

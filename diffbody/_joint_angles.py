@@ -67,7 +67,7 @@ none. How the coordinates differ besides the sign:
 
 (a) The same Z-X-Y sequence between the model's pelvis and femur frames, whose neutral is
     not our standing one: expect offsets of a few degrees (the shipped walk's hip flexion:
-    3-5 degrees, mostly the pelvis's tilt, tests/fitting/test_joint_angles_walk.py).
+    3-5 degrees, mostly the pelvis's tilt, tests/mocap/test_mocap.py).
 (b) OpenSim's knee_angle is negative in flexion, about one axis (the femur's Z) with a centre
     that moves with the angle (gait2354/2392's spline translations, Rajagopal's coupled
     ones); the gait models have no knee adduction or rotation.

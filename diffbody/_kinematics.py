@@ -309,7 +309,7 @@ def link_step(parent: Links, x: tuple[Array, Array, Array]) -> Links:
     (0, 0, length), and its children hang from the base frame turned by its twist."""
     R_local, tau, length = x
     # Elementwise (`matmul3`), not a dot: faster on CPU for 3x3 frames, and XLA's HLO
-    # verifier rejected the dot of this step under nested vmaps of a while loop.
+    # verifier (jax 0.10.2) rejects the dot of this step under nested vmaps of a while loop.
     R_base = matmul3(parent.R_twisted, R_local)
     return Links(
         R_base=R_base,

@@ -11,7 +11,6 @@ start. `EarlyStop` adds the reach's stop: once every target row is within a hund
 tolerance, waiting for the pull rows to settle would cost most of the steps.
 """
 
-import enum
 from typing import NamedTuple
 
 import jax
@@ -20,15 +19,9 @@ import lineax as lx
 import optimistix as optx
 from jaxtyping import Array, PyTree
 
+from ._statuses import FitStatus
+
 NORMAL_CHOLESKY = lx.Normal(lx.Cholesky())
-
-
-class FitStatus(enum.IntEnum):
-    """How a solve ended."""
-
-    CONVERGED = 0  # the solver's tolerances were met
-    NOT_CONVERGED = 1  # the steps ran out: the last iterate, usable but not settled
-    FAILED = 2  # a value became non-finite, or too little data: the start is returned
 
 
 def tolerance(dtype, float32: float, float64: float) -> float:

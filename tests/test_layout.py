@@ -8,7 +8,9 @@ back:
   is a public, documented name of the module that owns it;
 - the core (the top-level modules) imports no sub-package, and a sub-package imports only
   from the core and the sub-packages before it in `ORDER`;
-- no module longer than `MAX_LINES`.
+- no module longer than `MAX_LINES`;
+- no module outside `files/` reads a file's contents, but the long runs' own stores (`runs/`)
+  and the core's caches (`READERS_ELSEWHERE`).
 
 Each rule is a function of a {module name: path} map, run on diffbody and on a small broken
 package, so that each is seen to fail.
@@ -22,6 +24,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "diffbody"
 # A sub-package may import from the core and from those before it, never from those after.
 ORDER = (
     "files",
+    "runs",
     "anthropometry",
     "contact",
     "ik",
@@ -33,6 +36,16 @@ ORDER = (
     "cli",
 )
 MAX_LINES = 450
+# Reading a file: these calls (an attribute's name, or a module's function), and `open` in a
+# mode that reads (no mode, or one with "r" or "+").
+READING_METHODS = {"read_text", "read_bytes", "load", "loads", "loadtxt", "genfromtxt", "parse"}
+READING_FUNCTIONS = {("json", "load"), ("np", "load"), ("np", "loadtxt"), ("np", "genfromtxt")}
+READING_FUNCTIONS |= {("ET", "parse"), ("csv", "reader"), ("csv", "DictReader"), ("pickle", "load")}
+READING_FUNCTIONS |= {("zipfile", "ZipFile")}
+READERS_ELSEWHERE = {
+    "diffbody._programs": "the exported programs beside JAX's compilation cache",
+    "diffbody._memory_maps": "/proc's count of the process's memory maps",
+}
 
 
 def modules_of(package: Path) -> dict[str, Path]:
@@ -144,6 +157,33 @@ def long_modules(modules: dict[str, Path]) -> dict[str, int]:
 DIFFBODY = modules_of(PACKAGE)
 
 
+def _reads(call: ast.Call) -> bool:
+    f = call.func
+    if isinstance(f, ast.Name) and f.id == "open":
+        mode = call.args[1] if len(call.args) > 1 else None
+        mode = next((k.value for k in call.keywords if k.arg == "mode"), mode)
+        if mode is None:
+            return True
+        return not isinstance(mode, ast.Constant) or bool(set(mode.value) & set("r+"))
+    if isinstance(f, ast.Attribute):
+        if isinstance(f.value, ast.Name) and (f.value.id, f.attr) in READING_FUNCTIONS:
+            return True
+        return f.attr in ("read_text", "read_bytes")
+    return False
+
+
+def file_readers(modules: dict[str, Path], allowed=("files", "runs")) -> list[str]:
+    """`module:line` of every call that reads a file outside the families `allowed` and
+    `READERS_ELSEWHERE`."""
+    return [
+        f"{module}:{node.lineno}"
+        for module, path in modules.items()
+        if family(module) not in allowed and module not in READERS_ELSEWHERE
+        for node in ast.walk(ast.parse(path.read_text()))
+        if isinstance(node, ast.Call) and _reads(node)
+    ]
+
+
 def test_every_module_belongs_to_a_family():
     assert {family(m) for m in DIFFBODY} == {"core", *ORDER}
     assert family("diffbody._chain") == "core" and family("diffbody.ik._reach") == "ik"
@@ -166,10 +206,14 @@ def test_no_module_is_too_long():
     assert not long_modules(DIFFBODY)
 
 
+def test_every_file_reader_is_in_files():
+    assert not file_readers(DIFFBODY)
+
+
 def test_each_rule_finds_what_it_forbids(tmp_path):
     """A small package with one of each fault: a cycle through an import inside a function,
     a private name taken from another module, the core importing a sub-package, a long
-    module."""
+    module, a file read outside `files`."""
     pkg = tmp_path / "pkg"
     (pkg / "cli").mkdir(parents=True)
     (pkg / "__init__.py").write_text("from ._core import walk\n")
@@ -177,12 +221,17 @@ def test_each_rule_finds_what_it_forbids(tmp_path):
         "def walk():\n    from .cli._main import main\n\n" + "\n" * MAX_LINES
     )
     (pkg / "cli" / "__init__.py").write_text("from ._main import main\n")
-    (pkg / "cli" / "_main.py").write_text("from .._core import walk, _step\n\ndef main(): ...\n")
+    (pkg / "cli" / "_main.py").write_text(
+        "from .._core import walk, _step\n\ndef main(path):\n    return open(path).read()\n"
+    )
+    (pkg / "files").mkdir()
+    (pkg / "files" / "__init__.py").write_text("def read(p):\n    return open(p, 'rb').read()\n")
     modules = modules_of(pkg)
     assert cycles(modules) == ["pkg._core -> pkg.cli -> pkg.cli._main -> pkg._core"]
     assert private_crossings(modules) == ["pkg.cli._main imports _step from pkg._core"]
     assert upward_imports(modules) == ["pkg._core (core) imports pkg.cli._main (cli)"]
     assert long_modules(modules) == {"pkg._core": MAX_LINES + 3}
+    assert file_readers(modules) == ["pkg.cli._main:4"]
 
 
 def names_taken_from(sources: dict[str, str], package) -> list[str]:

@@ -13,11 +13,14 @@ import pytest
 from bodies import random_pose
 
 import diffbody as db
+from diffbody._body_cache import BodyCache
 from diffbody._memory_maps import BACKEND_COMPILE
 from diffbody.contact import sole_spheres
 from diffbody.ik import _constraints
 from diffbody.ik._constraints import GEOMETRY, resolve_constraints
 from diffbody.ik._targets import _floor_jit, resolve_targets, standing
+
+FEET = ("left_foot", "right_foot")
 
 # What a fresh process may compile for the set-up below: the standard position and the
 # forward kinematics that every pose of the body structure shares (the picture's too).

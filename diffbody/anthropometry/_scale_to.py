@@ -22,11 +22,11 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import ArrayLike
 
-from .._batches import map_chunks
 from .._body import Body, without_names
-from .._chunk_store import ChunkStore, input_hash
-from .._streaming import tree_hash
 from ..files._body_file import load_body
+from ..runs._batches import map_chunks
+from ..runs._chunk_store import ChunkStore, input_hash
+from ..runs._header import body_fields
 from ._measurements import MEASUREMENT_NAMES, UNITS, check_names, measure
 from ._prior import PopulationPrior, ansur2_subjects, check_sex
 from ._scaling import N_GROUPS, per_segment, scale_body
@@ -388,7 +388,7 @@ def scale_population(
         settings = {"function": "scale_population", "known": " ".join(known)}
         prior_hash = input_hash(np.asarray(prior.mean), np.asarray(prior.cov))
         settings |= {"values": input_hash(values), "prior": f"{prior.sex} {prior_hash}"}
-        settings |= {"body": tree_hash(template), "float": "float64"}  # solved in float64
+        settings |= dict(body_fields(template)) | {"float": "float64"}  # solved in float64
         chunk = min(chunk_size, len(values))
         store = ChunkStore.open(out, settings, chunk, resume)
     log_scales, converged, lengths = _solve_people(

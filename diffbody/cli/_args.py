@@ -165,10 +165,10 @@ def effector_chain(body, effectors: list[str]) -> list[str]:
     of gravity or a body re-rooted elsewhere); the whole body's placement never moves in a
     reach, so it is not among them."""
     from ..ik._targets import point_index
-    from ..ik._unknowns import path_to_top, segments_on_path
+    from ..ik._unknowns import segments_on_path
 
     on = segments_on_path(body, [point_index(body, e) for e in effectors])
-    top_down = sorted(on - {0}, key=lambda s: (len(path_to_top(body, s)), s))
+    top_down = sorted(on - {0}, key=lambda s: (len(body.path_to_top(s)), s))
     return [body.segment_names[s] for s in top_down]
 
 

@@ -1,6 +1,6 @@
 """The `diffbody batch` command: every row of a file of targets reached, one result row each
-in a CSV written as the run goes (the run: diffbody/ik/_batch_run.py; the file's layout:
-diffbody/ik/_batch_file.py).
+in a CSV written as the run goes (the run: diffbody/runs/_batch_run.py; the file's layout:
+diffbody/runs/_batch_file.py).
 
 The targets are read a chunk of rows at a time (`--chunk-size`); each chunk is solved, its
 postures written, then its rows appended to the results CSV in one write, flushed and
@@ -114,7 +114,7 @@ def start_processes(args) -> str | None:
 
 
 def _batch(args) -> int:
-    from .._streaming import Interrupted, Interrupts
+    from ..runs._streaming import Interrupted, Interrupts
 
     check_output("--out", args.out)
     # The run stops cleanly on either signal in every phase, not only while it solves (its
@@ -144,8 +144,8 @@ def _batch(args) -> int:
 
 def _stream(args):
     """The run, from joining the other processes to the merged files."""
-    from ..ik._batch_run import stream_reach_batch
-    from ..ik._reach_batch import solve_reach_batch
+    from ..ik._reach_run import batch_settings, chunk_solver
+    from ..runs._batch_run import stream_reach_batch
 
     processes = start_processes(args)
     if processes:
@@ -155,18 +155,17 @@ def _stream(args):
     note = check_segments(body, args.effector, args.segments)
     if note:
         print(note)
+    settings = batch_settings(spine=not args.no_spine, segments=args.segments, starts=args.starts)
     return stream_reach_batch(
-        solve_reach_batch,
+        chunk_solver(body, args.effector, None, settings),
         body,
         args.effector,
         args.targets,
         args.out,
+        settings,
         resume=args.resume,
         chunk_size=args.chunk_size,
         progress=True,
-        spine=not args.no_spine,
-        segments=args.segments,
-        starts=args.starts,
         names=OPTIONS,
         resume_option="--resume",
     )

@@ -162,8 +162,8 @@ def _mocap(args) -> int:
 
 def _mocap_trials(args) -> int:
     """A folder or glob pattern of trials: `fit_trials`, interrupts told as a clean stop."""
-    from .._streaming import Interrupted, Interrupts, read_results
     from ..mocap._trials import SUMMARY, fit_trials, trial_files
+    from ..runs._streaming import Interrupted, Interrupts, read_results
 
     out = "fits" if args.out is None else args.out
     if os.path.exists(out) and not os.path.isdir(out):

@@ -69,9 +69,10 @@ def _webb(args) -> int:
 
     import numpy as np
 
+    from .._statuses import FitStatus
     from ..files._webb_files import read_depths, read_points
     from ..images._joint_tree import default_joint_tree, read_joint_tree
-    from ..images._lifting import LiftOptions, LiftStatus, lift
+    from ..images._lifting import LiftOptions, lift
     from ..images._reflections import choose_reflections
 
     check_output("--out", args.out)
@@ -97,7 +98,7 @@ def _webb(args) -> int:
         lengths, joints, status = webb_lengths, np.asarray(choice.joints), None
     else:
         lengths, joints = np.asarray(lifted.lengths), np.asarray(lifted.joints)
-        status = LiftStatus(int(lifted.status))
+        status = FitStatus(int(lifted.status))
     print(f"{len(uv)} frames, {tree.n_parts} parts, reference {tree.names[tree.root]!r}")
     if anchor is not None:
         known = f"{int((anchor >= 0).sum())} of {tree.n_parts}"

@@ -5,7 +5,7 @@ Expectation-maximisation with annealing, from the start that `_cloud_start` sear
 when the correspondences are unknown: one Levenberg-Marquardt solve (`_solver`) per stage
 of `STAGES` (`KNOWN_STAGES` with correspondences), each started where the previous one ended.
 At a stage's start the correspondences and robust weights are fixed with the model spheres
-where they are (`_sphere_residuals.pairs_at`), at the stage's temperature T and loss scale c;
+where they are (`_cloud_residuals.pairs_at`), at the stage's temperature T and loss scale c;
 its least squares is then smooth: sqrt(weight) (model - measured) per pair, plus a pull
 toward the stage's start on every unknown, `STIFF` on the ones the stage holds (the first
 moves only the whole body, the second the posture too, the rest the dimensions as well) and
@@ -21,14 +21,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from .._batches import chunk_rows, map_chunks
 from .._body import Body, Pose, without_names
-from .._chunk_store import ChunkStore, float_name, input_hash
 from .._programs import compiled
 from .._solver import FitStatus, least_squares_solver, solve, tolerance
 from .._spine import spine_angles
-from .._streaming import tree_hash
 from ..anthropometry._scaling import log_scaled
+from ..runs._batches import chunk_rows, map_chunks
+from ..runs._chunk_store import ChunkStore, float_name, input_hash
+from ..runs._header import body_fields
+from ..runs._streaming import tree_hash
 from ._cloud_residuals import (
     FIT_NAMES,
     Cloud,
@@ -71,8 +72,8 @@ STEPS = 6  # solver steps per stage: few, each stage starts where its predecesso
 # With correspondences there is nothing to anneal but the outlier scale, and every restart
 # of Levenberg-Marquardt costs steps (its damping starts afresh): three long stages.
 KNOWN_STAGES = ((0.0, 0.30, 0, False), (0.0, 0.10, 2, False), (0.0, INLIER_DISTANCE, 2, True))
-# Exact clouds at spread 0.3 turned any way (48, float64) took up to 56 steps in a stage
-# (5 of them over 40, which left them NOT_CONVERGED with the right answer).
+# Steps per stage with correspondences: enough, with room to spare, for exact clouds posed
+# and turned as a user's are to converge in a stage (docs/benchmarks.md, "Anthropometry").
 KNOWN_STEPS = 80
 
 
@@ -184,8 +185,8 @@ def fit_one(template, lay, init, cloud, align, tables):
     """`fit_cloud`; when `tables` (static) is not None, from two starts side by side, the
     searched one and `init` moved onto the cloud, keeping the fit with more inliers (then
     the smaller residuals): the search's chamfer cost can prefer a start that anneals
-    worse than the plain one on a cloud near the standard position (a spread of 0.15:
-    41.7 mm against 4.4 mm worst segment)."""
+    worse than the plain one on a cloud near the standard position (docs/benchmarks.md,
+    "Anthropometry")."""
     if tables is None:
         return fit_cloud(template, lay, init, cloud, jnp.asarray(align))
     found = searched(template, lay, init, cloud, tables)
@@ -369,7 +370,9 @@ def fit_spheres_batch(
     if out is not None:
         given = input_hash(centers, radii, correspondences)
         settings = {"function": "fit_spheres_batch", "clouds": given, "fit": " ".join(fit)}
-        settings |= {"body": tree_hash(body), "init": "(none)" if init is None else tree_hash(init)}
+        settings |= dict(body_fields(body)) | {
+            "init": "(none)" if init is None else tree_hash(init)
+        }
         store = ChunkStore.open(out, settings | {"float": float_name()}, chunk, resume)
     fitted = map_chunks(
         run,

@@ -5,7 +5,7 @@ radius, m), the correspondences of a stage and its residual rows.
 
 A stage's correspondences (`pairs_at`): each measured sphere is its matched model sphere when
 they are known, else a soft one-to-one assignment at temperature T (`softassign`), each pair
-weighted by Geman-McClure at loss scale c. The staged fit that anneals T and c: `_sphere_fit`.
+weighted by Geman-McClure at loss scale c. The staged fit that anneals T and c: `_cloud_fit`.
 """
 
 from dataclasses import dataclass

@@ -1,6 +1,6 @@
 """Where a sphere-cloud fit without correspondences starts (docs/design.md, section 7).
 
-The annealed fit (`_sphere_fit`) lands when every limb starts within about 15 cm of its
+The annealed fit (`_cloud_fit`) lands when every limb starts within about 15 cm of its
 place; a person turned the other way, or an arm raised half a metre from the standard
 position, is outside that basin. `search_start` finds a start inside it by a discrete search
 that needs no solve: every candidate costs one walk and one robust chamfer distance.

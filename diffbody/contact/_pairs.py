@@ -8,9 +8,9 @@ A pair of segments is never checked when
 - they meet at a joint, counting each segment's rigid group as one (parent and child,
   siblings hanging from one joint, a thigh and the pelvis): their spheres meet at the joint
   by construction;
-- both belong to the trunk (the pelvis with its two halves and the vertebrae with the
-  neck): Bendspine spreads a bend over 18 joints of a few degrees each, so the slices cannot
-  fold into each other.
+- both belong to the trunk (`Body.trunk`, counting each segment's rigid group as one: the
+  pelvis with its two halves and the vertebrae with the neck): Bendspine spreads a bend
+  over 18 joints of a few degrees each, so the slices cannot fold into each other.
 Every other pair of spheres is checked. In the standard position the arms already sit up to
 40 mm into the torso, hips and thighs (data/README.md, "Known properties"): each sphere pair's
 rest overlap is its zero. The distance a pair reports against its allowance is
@@ -24,22 +24,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._body import Body, rest_geometry
-
-
-def trunk(body: Body) -> set[int]:
-    """The segments of the trunk: the whole body, the vertebrae (with the neck), the
-    segments above them (the pelvis) and every segment rigidly joined to one of these (the
-    pelvis's two halves, `rigid_groups`)."""
-    out = {0}
-    names = () if body.spine is None else body.spine.segment_names
-    for name in names:
-        s = body.segment_index(name)
-        while s >= 0:
-            out.add(s)
-            s = body.parent[s]
-    group = rigid_groups(body)
-    groups = {group[s] for s in out}
-    return {s for s in range(body.n_segments) if group[s] in groups}
 
 
 def rigid_groups(body: Body) -> list[int]:
@@ -68,12 +52,12 @@ def excluded_segment_pairs(body: Body) -> set[tuple[int, int]]:
     group_joints: dict[int, set[int]] = {}
     for s, g in enumerate(group):
         group_joints.setdefault(g, set()).update(joints[s])
-    torso = trunk(body)
+    torso = {group[s] for s in body.trunk}  # the trunk's rigid groups
     out = set()
     for a in range(body.n_segments):
         for b in range(a + 1, body.n_segments):
             meet = bool(group_joints[group[a]] & group_joints[group[b]])
-            if meet or group[a] == group[b] or (a in torso and b in torso):
+            if meet or group[a] == group[b] or (group[a] in torso and group[b] in torso):
                 out.add((a, b))
     return out
 

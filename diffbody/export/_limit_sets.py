@@ -30,6 +30,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .._body import Body
+from .._body_cache import BodyCache
 from .._kinematics import KINDS, socket_frame_of_kind
 
 # rad, added to every bound: more than `within_limits`' tolerance (256 eps) and the rounding
@@ -211,23 +212,16 @@ def _uniform_quaternions(n: int) -> np.ndarray:
     return np.stack([a * np.sin(t1), a * np.cos(t1), b * np.sin(t2), b * np.cos(t2)], axis=-1)
 
 
-def _limits_key(body: Body) -> bytes:
-    """What `ball_ranges` and `euler_hinges` depend on, as bytes (their cache key)."""
-    arrays = (body.swing_lo, body.swing_hi, body.swing_max, body.twist_lo, body.twist_hi)
-    parts = [np.asarray(a, np.float64).tobytes() for a in arrays + (body.R_socket_rest,)]
-    return b"|".join(parts + [repr((body.limit_kind, body.standard_kind)).encode()])
-
-
-_HINGES_CACHE: dict[bytes, list[EulerHinges]] = {}
+# What `segment_euler_hinges` reads: the limits and the standard frames.
+_HINGES = BodyCache(
+    ("swing_lo", "swing_hi", "swing_max", "twist_lo", "twist_hi", "R_socket_rest"), size=16
+)
 
 
 def euler_hinges(body: Body) -> list[EulerHinges]:
     """`segment_euler_hinges`, computed once per set of limits (a few seconds) and kept:
     `urdf_joint_values` needs it for every pose."""
-    key = _limits_key(body)
-    if key not in _HINGES_CACHE:
-        _HINGES_CACHE[key] = segment_euler_hinges(body)
-    return _HINGES_CACHE[key]
+    return _HINGES.get(body, None, lambda: segment_euler_hinges(body))
 
 
 def segment_euler_hinges(body: Body) -> list[EulerHinges]:

@@ -5,7 +5,7 @@ NumPy: m, kg).
 Every segment is a rigid link whose frame is `forward`'s twisted frame at its proximal joint,
 hanging from its socket: (0, 0, L_parent) in its parent's link, turned by R_parent_socket.
 Its rotation in the socket (`socket_rotations_batch`) is what the joints set: a ball, three
-hinges whose singularity lies outside the limits (`_limit_sets`), or, as before, the ZYZ
+hinges whose singularity lies outside the limits (`_limit_sets`), or the ZYZ
 hinges `{seg}_theta` about the socket's Z, `{seg}_phi` about the turned Y, `{seg}_twist`
 about the segment's own Z with value s(theta, phi) + tau (s the standard-orientation twist),
 so R_socket_twisted = Rz(theta) Ry(phi) Rz(s + tau) (`joint_values_batch`; singular at

@@ -168,22 +168,24 @@ def bounded(where: Where, field: str, x: float, bound, unit: str = "") -> float:
 
 
 def read_text(
-    path, kind: str, error: type[ValueError], saved_as: str, *, unit: str = "line"
+    path, kind: str, error: type[ValueError], saved_as: str, *, unit: str = "line", form: str = ""
 ) -> str:
     """The text of a `kind` file (a byte-order mark dropped): how every reader opens a file.
 
     A missing file is a FileNotFoundError ("PATH: no such KIND file"); a folder, bytes that
     are not UTF-8 and any other failure to read are `error`s naming the file, and for bad
     bytes the `unit` ("line", or "row" for a CSV) and byte, and how the file is meant to be
-    saved (`saved_as`, e.g. "a TRC file is tab-separated text")."""
+    saved (`saved_as`, e.g. "a TRC file is tab-separated text"); a folder is told what file
+    was expected, its `form` ("JSON") named."""
     shown = str(path)
     try:
         data = Path(path).read_bytes()
     except FileNotFoundError:
         raise FileNotFoundError(f"{shown}: no such {kind} file") from None
     except IsADirectoryError:
-        article = "an" if kind[0] in "aeiouAEIOU" else "a"
-        raise error(f"{shown}: is a directory; expected {article} {kind} file") from None
+        what = f"{kind} {form}".strip()
+        article = "an" if what[0] in "aeiouAEIOU" else "a"
+        raise error(f"{shown}: is a directory; expected {article} {what} file") from None
     except OSError as e:
         raise error(f"{shown}: cannot read the {kind} file: {e.strerror}") from None
     try:
@@ -201,7 +203,7 @@ def read_json(path: Path, kind: str, error: type[ValueError] = BodyFileError) ->
     the file and raises `error`. Objects keep the keys given twice (`_Object.duplicates`) for
     `Where.fields` to reject."""
     shown = str(path)
-    text = read_text(path, f"{kind} JSON", error, f"a {kind} file is JSON saved as UTF-8")
+    text = read_text(path, kind, error, f"a {kind} file is JSON saved as UTF-8", form="JSON")
     try:
         return json.loads(text, object_pairs_hook=json_object)
     except json.JSONDecodeError as e:

@@ -15,6 +15,7 @@ import csv
 import io
 import json
 import math
+import os
 
 import numpy as np
 
@@ -23,11 +24,11 @@ from ._data_files import read_text
 NEAR, FAR = 0, 1  # reflection codes: the part's ending joint is the nearer / farther point
 
 
-def _text(path: str, what: str) -> str:
+def _text(path: str | os.PathLike, what: str) -> str:
     return read_text(path, f"{what} CSV", ValueError, f"save the {what} as a UTF-8 CSV", unit="row")
 
 
-def _number(path: str, line: int, col: int, cell: str) -> float:
+def _number(path: str | os.PathLike, line: int, col: int, cell: str) -> float:
     try:
         v = float(cell)
     except ValueError:
@@ -37,7 +38,7 @@ def _number(path: str, line: int, col: int, cell: str) -> float:
     return v
 
 
-def read_points(path: str, names: tuple[str, ...]):
+def read_points(path: str | os.PathLike, names: tuple[str, ...]):
     """(T, J, 2) px from a points CSV (module docstring), columns matched by name."""
     text = _text(path, "image points")
     reader = csv.reader(io.StringIO(text, newline=""))
@@ -83,7 +84,7 @@ def read_points(path: str, names: tuple[str, ...]):
     return out
 
 
-def read_depths(path: str, n_frames: int):
+def read_depths(path: str | os.PathLike, n_frames: int):
     """(T,) m from a root-depth CSV: one number > 0 per row, an optional header."""
     text = _text(path, "depths")
     reader = csv.reader(io.StringIO(text, newline=""))
@@ -120,7 +121,7 @@ def read_depths(path: str, n_frames: int):
 ANCHOR_EXAMPLE = '{"center_hip->left_hip": "near", "left_hip->left_knee": "far", ...}'
 
 
-def read_anchor(path: str, part_names: tuple[str, ...]):
+def read_anchor(path: str | os.PathLike, part_names: tuple[str, ...]):
     """(P,) reflection codes from an anchor JSON (module docstring): NEAR 0 or FAR 1 for the
     parts it names, -1 (left to continuity) for the others; errors name the file, the
     entry and the fix."""

@@ -90,10 +90,8 @@ def implicit(problem: Problem, targets: TargetSet, x: Array) -> Array:
     Why not optimistix's `ImplicitAdjoint` (which every other fit uses through
     `optx.least_squares`): a reach keeps one answer out of several starts and phases, and
     its solves run without derivatives, so one compiled solve serves differentiated and
-    plain calls alike; and it is cheaper. Measured on the left arm's palm target (float64,
-    2-core CPU, `jax.jacrev` of the reached palm with respect to the target, one start):
-    compile 9.6 s against 15.7 s, run 0.34 ms against 0.82 ms, both within 1.1e-5 of
-    central differences (the pull's share)."""
+    plain calls alike; and it compiles and runs in about half the time (docs/benchmarks.md,
+    "Inverse kinematics")."""
     x = jax.lax.stop_gradient(x)
     fixed = no_gradient((problem, targets))
     J = jax.jacfwd(lambda x: fixed[0].residuals(x, fixed[1]))(x)
@@ -234,8 +232,8 @@ def attempt_round(
 
 
 # Standing, a phase may take this many times `max_steps`: the planted feet close a loop
-# through the legs and the pelvis, so its steps are shorter (the 1.0 m reach of the ladder
-# misses by 57 mm after 30 steps a start, by 1.5 mm after 100).
+# through the legs and the pelvis, so its steps are shorter and a far reach needs more of
+# them (docs/benchmarks.md, "Inverse kinematics").
 STANDING_STEPS = 4
 
 

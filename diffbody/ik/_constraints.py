@@ -19,6 +19,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._body import Body, Pose
+from .._body_cache import RANGES, BodyCache
 from .._device_arrays import device_array
 from .._kinematics import forward
 from .._programs import is_traced
@@ -31,7 +32,8 @@ from ..contact._support import sole_spheres, support_edges
 # constraint violated by about 0.1 mm (the penalty's balance, 10 cm / WEIGHT^2).
 WEIGHT = 50.0
 KINDS = ("no_contact", "on_floor", "balance")
-FEET = ("left_foot", "right_foot")
+# The arrays the host work reads (which pairs, which soles): the standard geometry, the limits.
+GEOMETRY = ("lengths", "R_socket_rest", "rest_position", "sphere_origins", "sphere_radii", *RANGES)
 
 
 class Constraints(eqx.Module):
@@ -81,47 +83,14 @@ def resolve_constraints(body: Body, targets: Sequence, init: Pose) -> Constraint
     targets = [t for t in targets if is_constraint(t)]
     if not targets:
         return None
-    key = (geometry_key(body), tuple(target_key(t) for t in targets))
-    if key not in _HOST:
-        _HOST[key] = _host_constraints(body, targets)
-    c = _HOST[key]
+    key = tuple(target_key(t) for t in targets)
+    c = _HOST.get(body, key, lambda: _host_constraints(body, targets))
     if not c.sole.shape[0]:
         return c
     return (_plant_jit if is_traced(body, c, init) else _plant)(body, c, init)
 
 
-_HOST: dict = {}
-
-
-def geometry_key(body: Body) -> tuple:
-    """What the pairs and soles depend on: the structure, limits and standard geometry
-    (remembered per body object: reading the arrays back costs a warm solve's time)."""
-    seen = _KEYS.get(id(body))
-    if seen is not None and seen[0] is body:
-        return seen[1]
-    key = _geometry_key(body)
-    if len(_KEYS) >= 64:
-        _KEYS.pop(next(iter(_KEYS)))
-    _KEYS[id(body)] = (body, key)
-    return key
-
-
-_KEYS: dict = {}
-
-
-def _geometry_key(body: Body) -> tuple:
-    arrays = (
-        body.lengths,
-        body.R_socket_rest,
-        body.rest_position,
-        body.sphere_origins,
-        body.sphere_radii,
-        body.swing_lo,
-        body.swing_hi,
-        body.twist_lo,
-        body.twist_hi,
-    )
-    return (jax.tree.structure(body),) + tuple(np.asarray(a).tobytes() for a in arrays)
+_HOST = BodyCache(GEOMETRY, size=128)
 
 
 def target_key(t) -> tuple:
@@ -165,7 +134,8 @@ def _host_constraints(body: Body, targets: Sequence) -> Constraints:
     env_segs = sorted({s for t in env_targets for s in _segments(body, t.segments)})
     seg_of = np.asarray(body.sphere_segment, int)
     env_spheres = [k for k in range(body.n_spheres) if seg_of[k] in set(env_segs)]
-    feet = sorted({body.segment_index(n) for t in floors for n in t.segments})
+    stands = [_floor_segments(body, t) for t in floors]
+    feet = sorted({s for segs in stands for s in segs})
     soles = sole_spheres(body, [body.segment_names[s] for s in feet]) if feet else np.zeros(0, int)
     used = set(env_spheres) | set(soles.tolist())
     if self_pairs is not None:
@@ -174,7 +144,7 @@ def _host_constraints(body: Body, targets: Sequence) -> Constraints:
     where = {k: n for n, k in enumerate(spheres)}
     remap = np.vectorize(where.__getitem__, otypes=[int])
     empty = np.zeros(0, int)
-    heights = {body.segment_index(n): t.height for t in floors for n in t.segments}
+    heights = {s: t.height for t, segs in zip(floors, stands) for s in segs}
     n_sole = len(soles)
     read = {seg_of[s] for s in spheres} | (set(range(body.n_segments)) if balance else set())
     if any(isinstance(heights[seg_of[s]], jax.core.Tracer) for s in soles):
@@ -205,6 +175,18 @@ def _host_constraints(body: Body, targets: Sequence) -> Constraints:
         edge=device_array(np.zeros(n_sole**2, bool), bool),
         balance_margin=device_array(max([t.margin for t in balance], default=0.0)),
     )
+
+
+def _floor_segments(body: Body, t) -> list[int]:
+    """The segments an `on_floor` target stands on: those it names, else the body's feet."""
+    if t.segments is not None:
+        return _segments(body, t.segments)
+    if not body.feet:
+        raise ValueError(
+            "Target.on_floor: the body has no feet (segments named '*_foot'); name the "
+            "segments to stand on"
+        )
+    return list(body.feet)
 
 
 def _plant(body: Body, c: Constraints, init: Pose) -> Constraints:

@@ -40,7 +40,7 @@ from .._kinematics import feature_points, socket_frames_from_swing
 from .._rotations import exp_rotvec, safe_norm, swing_rotation
 from ._problem import Problem
 from ._targets import TargetSet
-from ._unknowns import Layout, into_cone, path_to_top, point_segment, squash, unsquash
+from ._unknowns import Layout, into_cone, point_segment, squash, unsquash
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ def limbs(body: Body, layout: Layout, axis_segments: tuple[int, ...]) -> tuple[L
     for row, index in enumerate(layout.points):
         if index >= body.n_joints + len(body.feature_names) or index == 0:
             continue
-        for hinge in path_to_top(body, point_segment(body, index)):
+        for hinge in body.path_to_top(point_segment(body, index)):
             upper = int(body.parent[hinge])
             if body.limit_kind[hinge] != "hinge" or body.standard_kind[hinge] != "swing":
                 continue
@@ -86,7 +86,7 @@ def limbs(body: Body, layout: Layout, axis_segments: tuple[int, ...]) -> tuple[L
                 found.append(Limb(row, index, upper, hinge, x_upper, x_hinge))
             break
     uppers = [limb.upper for limb in found]
-    on_limb = {s for a in axis_segments for s in path_to_top(body, a)}
+    on_limb = {s for a in axis_segments for s in body.path_to_top(a)}
     return tuple(
         limb for limb in found if uppers.count(limb.upper) == 1 and limb.upper not in on_limb
     )

@@ -24,6 +24,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike
 
 from .._body import Body, Pose
+from .._body_cache import RANGES, BodyCache
 from .._kinematics import Links, forward
 from .._programs import compiled, is_traced
 from .._spine import spine_angles
@@ -41,7 +42,7 @@ from ._plans import fits_tree, make_plan
 from ._problem import stiffness_of
 from ._targets import TargetSet
 from ._tree import padded_targets, targets_rows, tree_layout
-from ._unknowns import Layout, make_layout, path_to_top, point_segment
+from ._unknowns import Layout, make_layout, point_segment
 
 
 def is_none(x) -> bool:
@@ -50,15 +51,6 @@ def is_none(x) -> bool:
 
 
 # --- the phases -------------------------------------------------------------------------
-def trunk_segments(body: Body) -> set[int]:
-    """The whole body, the spine's segments and everything above them (the pelvis)."""
-    trunk = {0}
-    if body.spine is not None:
-        for name in body.spine.segment_names:
-            trunk |= set(path_to_top(body, body.segment_index(name)))
-    return trunk
-
-
 def phase_layouts(
     body: Body,
     phase_targets: Sequence[TargetSet],
@@ -74,25 +66,20 @@ def phase_layouts(
     `stand`: the trunk's phase stands on its feet (the root's placement and the legs free).
     Cached per body structure and limits (host work of milliseconds, on every call
     otherwise)."""
-    ranges = (body.swing_lo, body.swing_hi, body.twist_lo, body.twist_hi)
     args = (body, tuple(phase_targets), spine, free_root, segments, stand)
-    if is_traced(ranges):
+    if is_traced([getattr(body, name) for name in RANGES]):
         return _phase_layouts(*args)
-    key = (
-        jax.tree.structure(body),
-        tuple(np.asarray(a).tobytes() for a in ranges),
+    extra = (
         tuple((ts.point_index, ts.axis_segment, _reads(ts)) for ts in phase_targets),
         spine,
         free_root,
         None if segments is None else tuple(segments),
         stand,
     )
-    if key not in _LAYOUTS:
-        _LAYOUTS[key] = _phase_layouts(*args)
-    return _LAYOUTS[key]
+    return _LAYOUTS.get(body, extra, lambda: _phase_layouts(*args))
 
 
-_LAYOUTS: dict = {}
+_LAYOUTS = BodyCache(RANGES, size=256)
 
 
 def _reads(ts: TargetSet) -> tuple[tuple[int, ...], tuple[int, ...]]:
@@ -111,9 +98,7 @@ def _phase_layouts(body, phase_targets, spine, free_root, segments, stand) -> li
     read, feet = _reads(last)
     full = make_layout(body, points, axes, movable, spine, free_root or stand, read, feet)
     read, feet = _reads(first)
-    limbs = make_layout(
-        body, points, axes, movable - trunk_segments(body), False, False, read, feet
-    )
+    limbs = make_layout(body, points, axes, movable - body.trunk, False, False, read, feet)
     if limbs.n_free == 0 or limbs.n_free == full.n_free:
         return [full]
     return [limbs, full]
@@ -135,19 +120,19 @@ def reach_bound(body: Body, layout: Layout, links: Links) -> tuple[np.ndarray, n
     """Per point target, the fixed point its chain hangs from (n_p, 3; start links, global
     order) and the farthest its effector can be from it (n_p,): the sum of the live
     segments' lengths on its path, the effector's own segment counted to the effector. inf
-    where the root is free or the whole tree moves (no fixed point); standing, from the left
-    ankle, the leg counted too."""
+    where the root is free or the whole tree moves (no fixed point); standing, from the
+    ankle of the first of `Body.feet` (the left), the leg counted too."""
     n_j = body.n_joints
     lengths = np.asarray(body.lengths)
     live = set(layout.chain.segments)
     anchor, bound = [], []
     for index in layout.points:
         seg = point_segment(body, index)
-        path = [s for s in path_to_top(body, seg) if s in live]
+        path = [s for s in body.path_to_top(seg) if s in live]
         if layout.standing and not layout.full and path:
             # Standing, the chain hangs from a planted foot: from its ankle, up the leg.
-            foot = body.segment_index("left_foot")
-            leg = path_to_top(body, foot)[1:]
+            foot = body.feet[0]
+            leg = list(body.path_to_top(foot)[1:])
             anchor.append(np.asarray(links.p_proximal[foot]))
             bound.append(sum(lengths[s] for s in set(path + leg)) + _own_extra(body, index))
             continue
@@ -220,7 +205,7 @@ def out_of_reach(body: Body, layout: Layout, init: Pose, xyz: ArrayLike, links=N
     live = set(layout.chain.segments)
     for j, index in enumerate(layout.points):
         seg = point_segment(body, index)
-        path = [s for s in path_to_top(body, seg) if s in live]
+        path = [s for s in body.path_to_top(seg) if s in live]
         if layout.root or layout.full or len(path) < 2 or not np.isfinite(bound[j]):
             continue
         top = path[-1]
@@ -262,7 +247,7 @@ def phase_plan(
     (reported) and out of reach (no further start), and the round caps of a start out of
     reach: every round, so that a limb reaching for what it cannot reach ends at its closest
     reach, where the trunk phase starts (from a limb stopped short, Levenberg-Marquardt
-    bends the spine further than the arm falls short: +2 degrees on the reach ladder)."""
+    bends the spine further than the arm falls short)."""
     layout = layouts[phase]
     links = host_links(body, init)
     beyond = beyond_bound(body, layout, init, xyz, links)
@@ -334,9 +319,9 @@ def phase_plans(body: Body, layouts: list[Layout], phase_targets) -> list | None
 
     Why the standing phase keeps its own program: a far standing reach ends where its step
     budget runs out near a constrained equilibrium, and there rounding decides the answer
-    (an accepted or rejected step flips at 1e-13): on the whole tree's arithmetic the guide's
-    1.1 m rung ends 13 mm short where its own layout's ends 7.5 mm short, equally far from
-    converged. Its program stays the one whose answers the reach ladder documents."""
+    (an accepted or rejected step flips at 1e-13), so the whole tree's arithmetic ends it
+    elsewhere, no nearer to converged (docs/benchmarks.md, "Inverse kinematics"). Its
+    program stays the one whose answers the reach ladder documents."""
     sets = phase_targets_of(layouts, phase_targets)
     if not fits_tree(body, sets[0]):
         return None
@@ -346,14 +331,14 @@ def phase_plans(body: Body, layouts: list[Layout], phase_targets) -> list | None
         if lay.standing:
             plans.append(None)
             continue
-        plan = make_plan(body, tree, lay, ts, closed_form(k, ts), stiffness_of(body, lay))
+        plan = make_plan(body, tree, lay, ts, uses_limb_start(k, ts), stiffness_of(body, lay))
         if plan is None:
             return None
         plans.append(plan)
     return plans
 
 
-def closed_form(phase: int, ts: TargetSet) -> bool:
+def uses_limb_start(phase: int, ts: TargetSet) -> bool:
     """Whether a phase's first start is the closed-form limb start: in the limbs' phase,
     unless contact is avoided. The closed form places the limb straight through whatever
     lies between, and a start inside the body stays stuck there; from `init` the solve
@@ -382,7 +367,7 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plan
         plan = None if plans is None else plans[phase]
         solved = ts if plan is None else padded_targets(ts)
         for k in range(1 if far.any() else starts):
-            closed = closed_form(phase, ts)
+            closed = uses_limb_start(phase, ts)
             a = run_start(body, layout, start_pose, solved, k, caps, tols, closed, plan)
             if plans is not None and plan is None:
                 a = padded_errors(a, ts)  # as the whole tree's attempts, for one conclusion
@@ -412,7 +397,7 @@ def solve_traced(body, layouts, init, phase_targets, starts, max_steps, tols):
     for phase, (layout, ts) in enumerate(zip(layouts, phase_targets_of(layouts, phase_targets))):
         b0, p0, t0, tp0, ta0 = no_gradient((body, start_pose, ts, *tols))
         steps_k = phase_steps(layout, max_steps)
-        closed = closed_form(phase, ts)
+        closed = uses_limb_start(phase, ts)
         x, s = _all_starts_jit(b0, layout, p0, t0, starts, steps_k, tp0, ta0, closed)
         a = _assess_jit(body, layout, start_pose, ts, x, s, *tols, True)
         steps = steps + s

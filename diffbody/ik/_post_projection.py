@@ -11,7 +11,7 @@ from .._body import Body, Pose
 from .._kinematics import forward
 from .._limits import within_limits
 from .._posture import pose_from_joints
-from ._unknowns import Layout, path_to_top, point_segment
+from ._unknowns import Layout, point_segment
 
 # A reset that breaks a limit by more than this (rad) is refused: the posture from joints
 # rounds, and a twist exactly at its limit must stay admissible.
@@ -38,7 +38,7 @@ def twists_to_keep(body: Body, layout: Layout) -> tuple[int, ...]:
             for k in layout.axis_slot
         ]
     for seg in off_axis:
-        keep |= set(path_to_top(body, seg))
+        keep |= set(body.path_to_top(seg))
     keep |= {int(body.parent[i]) for i in range(body.n_segments) if body.limit_kind[i] == "hinge"}
     return tuple(sorted(keep))
 

@@ -387,7 +387,7 @@ def stiffness_of(body: Body, layout: Layout) -> np.ndarray:
     if not layout.standing:
         return k
     seg = np.asarray(layout.chain.segments, int)
-    below_hips = {s for s in range(body.n_segments) if _below_hip(body, s)}
+    below_hips = body.below(body.thighs)  # the shanks and feet
     n_sx, n_sy, n_tw, n_sp, _ = layout.sizes
     parts = [layout.swing_x, layout.swing_y, layout.twist]
     at = 0
@@ -398,14 +398,3 @@ def stiffness_of(body: Body, layout: Layout) -> np.ndarray:
         at += len(part)
     k[at + n_sp : at + n_sp + 3] = STANDING_STIFFNESS  # the root's shift
     return k
-
-
-def _below_hip(body: Body, s: int) -> bool:
-    """Whether a segment lies below a thigh (a shank, a foot): its grandparent is no trunk
-    segment but its path holds a segment hanging from the pelvis."""
-    path = []
-    while s >= 0:
-        path.append(s)
-        s = body.parent[s]
-    names = [body.segment_names[p] for p in path]
-    return any(n.endswith("_thigh") for n in names[1:])

@@ -7,7 +7,6 @@ solve, differentiated implicitly (`_attempt`). Then the standard orientation is 
 (`_post_projection`) and the errors are reported per target.
 """
 
-import enum
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -17,11 +16,13 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._body import Body, Pose
+from .._body_cache import BodyCache
 from .._device_arrays import device_array
 from .._programs import compiled
+from .._statuses import ReachStatus
 from ._attempt import Attempt
 from ._constraints import (
-    geometry_key,
+    GEOMETRY,
     is_constraint,
     pose_violations,
     resolve_constraints,
@@ -32,34 +33,6 @@ from ._post_projection import finish, keep_mask, needs_projection
 from ._targets import Target, TargetSet, flatten_targets, resolve_targets
 from ._targets import standing as standing_targets
 from ._tree import padded_targets, targets_rows
-
-
-class ReachStatus(enum.IntEnum):
-    """What a reach solve reports (`ReachResult.status`)."""
-
-    SUCCESS = 0  # every valid target reached within the tolerance
-    NOT_REACHED = 1  # a target missed although no bound rules it out: the closest reach found
-    UNREACHABLE = 2  # a target lies beyond the reach of its chain: the closest reach
-    INVALID_TARGET = 3  # a target is not finite: it took no part (the others were solved)
-    CONSTRAINED = 4  # a target missed while every constraint holds: they stop the reach
-    CONSTRAINT_VIOLATED = 5  # a constraint (contact, feet, balance) could not be kept
-
-    def describe(self) -> str:
-        """What the status means, in words."""
-        return _DESCRIPTIONS[self]
-
-
-_DESCRIPTIONS = {
-    ReachStatus.SUCCESS: "reached",
-    ReachStatus.NOT_REACHED: "not reached: no start found a posture within the tolerance",
-    ReachStatus.UNREACHABLE: "not reached: target outside the reach envelope",
-    ReachStatus.INVALID_TARGET: "invalid target (not finite): ignored",
-    ReachStatus.CONSTRAINED: (
-        "not reached: keeping balance, the feet planted or clear of contact stops the reach"
-    ),
-    ReachStatus.CONSTRAINT_VIOLATED: "a constraint (contact, feet, balance) is not kept",
-}
-
 
 # solve_reach returns device arrays; solve_reach_batch returns host (numpy) arrays with a
 # leading batch axis.
@@ -209,23 +182,21 @@ def constrained_targets(
     standard position (`default_init`) the constraints are remembered per body and
     constraints, as they depend on nothing else."""
     given = [t for t in flat if is_constraint(t)]
-    key = None
-    if default_init and not is_traced(body, [t.height for t in given]):
-        key = (geometry_key(body), stand, tuple(target_key(t) for t in given))
-    if key is None or key not in _DEFAULT:
+
+    def both() -> tuple:
         extra = standing_targets(body, init) if stand else []
         limbs = resolve_constraints(body, given, init)
-        trunk = resolve_constraints(body, given + extra, init) if extra else limbs
-        if key is None:
-            return [_with(ts, limbs), _with(ts, trunk)]
-        if len(_DEFAULT) >= 64:
-            _DEFAULT.pop(next(iter(_DEFAULT)))
-        _DEFAULT[key] = (limbs, trunk)
-    limbs, trunk = _DEFAULT[key]
+        return limbs, resolve_constraints(body, given + extra, init) if extra else limbs
+
+    if default_init and not is_traced(body, [t.height for t in given]):
+        limbs, trunk = _DEFAULT.get(body, (stand, tuple(target_key(t) for t in given)), both)
+    else:
+        limbs, trunk = both()
     return [_with(ts, limbs), _with(ts, trunk)]
 
 
-_DEFAULT: dict = {}
+# Planted in the standard position: `forward` reads the socket turns and the pinned frame too.
+_DEFAULT = BodyCache(GEOMETRY + ("R_parent_socket", "R_world_pin_rest"), size=64)
 
 
 def _with(ts: TargetSet, c) -> TargetSet:

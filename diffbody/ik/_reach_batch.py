@@ -14,15 +14,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
-from .._batches import chunk_rows, map_chunks, row_sharding
 from .._body import Body, Pose
 from .._programs import compiled
 from .._spine import spine_angles
 from ..files._targets_file import read_targets
+from ..runs._batches import chunk_rows, map_chunks, row_sharding
 from ._attempt import Attempt, attempt_round, better, phase_steps, round_caps
-from ._batch_run import BatchRun, stream_reach_batch
 from ._constraints import is_constraint, pose_violations
-from ._phases import closed_form, is_none, phase_layouts, phase_plan, phase_targets_of
+from ._phases import is_none, phase_layouts, phase_plan, phase_targets_of, uses_limb_start
 from ._post_projection import finish, keep_mask, needs_projection
 from ._reach import ReachResult, check_settings, constrained_targets, reach_status
 from ._targets import Target, TargetSet, resolve_targets
@@ -67,8 +66,6 @@ def solve_reach_batch(
     effectors: Sequence[str],
     positions: ArrayLike | str | os.PathLike,
     *,
-    out: str | os.PathLike | None = None,
-    resume: bool = False,
     init: Pose | None = None,
     chunk_size: int = 4096,
     progress: bool = True,
@@ -80,7 +77,7 @@ def solve_reach_batch(
     starts: int = 8,
     max_steps: int = 30,
     tol_position: float = 1e-3,
-) -> ReachResult | BatchRun:
+) -> ReachResult:
     """Solve many reach problems: row i puts `effectors[j]` at `positions[i, j]`.
 
     The same problem as `solve_reach` with position targets only, vmapped: the rows go
@@ -98,13 +95,6 @@ def solve_reach_batch(
         effectors: k joint / feature names or "center_of_gravity".
         positions: (n, k, 3) metres, or (n, 3) for one effector; or a file of them (CSV
             of x,y,z per effector, a header row optional, or Parquet with pyarrow).
-        out: a results CSV to write as the run goes (its postures beside it,
-            results.poses.npz): chunk by chunk, each written whole, a file read a chunk at
-            a time, memory flat in the rows; an interrupt keeps every finished chunk
-            (`Interrupted`, a KeyboardInterrupt, says how far). Under `jax.distributed`
-            each process solves its share and process 0 merges them. Returns a `BatchRun`.
-        resume: with `out`, go on after its last finished chunk; refused (ValueError naming
-            what changed) when the input, the body or a setting differs.
         init: the starting pose of every row (default: the standard position).
         chunk_size: rows per compiled call (rounded up to a multiple of the device count).
         progress: print a progress bar to stderr.
@@ -117,7 +107,8 @@ def solve_reach_batch(
     Returns:
         A `ReachResult` of host (numpy) arrays with a leading batch axis n: `reached`,
         `residuals`, `valid`, `beyond` (n, k), `status`, `steps` (n,), `violation`
-        (n, n_constraints), and the poses. With `out`: a `BatchRun` (the files written).
+        (n, n_constraints), and the poses. `run_reach_batch` writes them to a file instead,
+        as the run goes.
 
     Raises:
         KeyError: an unknown effector (the message lists the valid ones).
@@ -127,10 +118,6 @@ def solve_reach_batch(
     settings.update(segments=segments, starts=starts, max_steps=max_steps, devices=devices)
     settings.update(chunk_size=chunk_size, progress=progress, tol_position=tol_position)
     effectors = [effectors] if isinstance(effectors, str) else list(effectors)
-    if out is not None:  # the settings checked before a file is begun
-        _prepare(body, effectors, np.zeros((1, len(effectors), 3)), **settings)
-        stream = functools.partial(stream_reach_batch, solve_reach_batch, body, effectors)
-        return stream(positions, out, resume=resume, **settings)
     if isinstance(positions, (str, os.PathLike)):  # read whole
         positions = read_targets(positions, len(effectors))
     s = _prepare(body, effectors, positions, **settings)
@@ -138,6 +125,11 @@ def solve_reach_batch(
         return _empty_result(s)
     best, steps, beyond = _solve_rows(s)
     return _batch_result(s, _project(s, best), steps, beyond)
+
+
+def check_batch(body: Body, effectors: Sequence[str], **settings) -> None:
+    """Refuse bad settings of `solve_reach_batch` (as it would) before any row is read."""
+    _prepare(body, effectors, np.zeros((1, len(effectors), 3)), **settings)
 
 
 # --- the steps of solve_reach_batch ----------------------------------------------------------
@@ -337,7 +329,7 @@ def _start(
     out = None
     going = np.arange(m)
     label = "reach" if phase == 0 and np.all(start == 0) else "reach, further starts"
-    closed = closed_form(phase, s.templates[0])
+    closed = uses_limb_start(phase, s.templates[0])
     for r, cap in enumerate(caps):
         poses = None if start_poses is None else _rows(start_poses, rows[going])
         g = going

@@ -17,7 +17,7 @@ from .._kinematics import forward
 from .._programs import is_traced
 from ..contact._environment import Environment
 from ..contact._support import sole_spheres
-from ._constraints import FEET, Constraints
+from ._constraints import Constraints
 
 COG = "center_of_gravity"
 
@@ -52,7 +52,7 @@ class Target:
     axis: np.ndarray | None = None  # (3,) unit axis in the segment's twisted frame, for "axis"
     weight: float = 1.0
     # Constraints (docs/design.md, section 10):
-    segments: tuple[str, ...] | None = None  # the segments it holds (None: all)
+    segments: tuple[str, ...] | None = None  # the segments it holds (None: all; on_floor: the feet)
     environment: Environment | None = None  # no_contact: shapes not to enter
     margin: float = 0.0  # m, no_contact: clearance; balance: inside the polygon's edge
     height: float = 0.0  # m, on_floor: the floor z = height
@@ -119,15 +119,13 @@ class Target:
         )
 
     @classmethod
-    def on_floor(
-        cls, segments: Sequence[str] = ("left_foot", "right_foot"), height: float = 0.0
-    ) -> "Target":
+    def on_floor(cls, segments: Sequence[str] | None = None, height: float = 0.0) -> "Target":
         """A constraint: these segments' sole spheres (the lowest in the standard
         position) touch the floor z = `height` (m) and do not slide from where the start
-        pose has them."""
+        pose has them. None: the body's feet (`Body.feet`: "left_foot", "right_foot")."""
         if not np.isfinite(float(height)):
             raise ValueError(f"Target.on_floor: height must be finite, got {height!r}")
-        names = _names("on_floor", segments)
+        names = None if segments is None else _names("on_floor", segments)
         return cls("on_floor", "on_floor", np.zeros(3), None, 1.0, names, None, 0.0, float(height))
 
     @classmethod
@@ -262,14 +260,15 @@ _floor_jit = eqx.filter_jit(_floor)  # traced: one program, not op by op under j
 def standing(body: Body, init: Pose, height: float | None = None) -> list:
     """The targets of a standing body: the feet planted where they are in `init` (on the
     floor at the lowest of their sole spheres), the centre of gravity over them (2 cm
-    inside), the floor not entered. Empty for a body without both feet."""
-    if not all(n in body.segment_names for n in FEET):
+    inside), the floor not entered. Empty for a body with fewer than two feet (`Body.feet`)."""
+    feet = [body.segment_names[s] for s in body.feet]
+    if len(feet) < 2:
         return []
     if height is None:
-        soles = sole_spheres(body, FEET)
+        soles = sole_spheres(body, feet)
         height = (_floor_jit if is_traced(body, init) else _floor)(body, soles, init)
     return [
-        Target.on_floor(FEET, height=height),
+        Target.on_floor(feet, height=height),
         Target.balance(),
         Target.no_contact(environment=Environment.floor(height), self_contact=False),
     ]

@@ -22,12 +22,12 @@ stiffnesses are the phase's, and the answers those of the phase's own program.
 import dataclasses
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._body import Body
+from .._body_cache import RANGES, BodyCache
 from .._device_arrays import device_array, take
 from ._targets import TargetSet
 from ._unknowns import Layout, make_layout
@@ -77,27 +77,22 @@ def tree_layout(body: Body) -> Layout:
     with a range, the spine as its target, the root's placement; every segment readable
     by the constraints. One per body structure and limits (cached: host work of
     milliseconds)."""
-    key = (jax.tree.structure(body), tuple(np.asarray(a).tobytes() for a in _ranges(body)))
-    if key not in _TREES:
-        if len(_TREES) >= 16:
-            _TREES.pop(next(iter(_TREES)))
-        n, cog = body.n_segments, body.n_joints + len(body.feature_names)
-        every = make_layout(body, (cog,), (), range(n), spine=True, root=True)
-        _TREES[key] = dataclasses.replace(
-            every,
-            full=body.root_joint != body.default_root_joint,
-            points=(),
-            point_slot=(),
-            read_slot=tuple(every.chain.position(s) for s in range(n)),
-        )
-    return _TREES[key]
+    return _TREES.get(body, None, lambda: _tree_layout(body))
 
 
-_TREES: dict = {}
+_TREES = BodyCache(RANGES, size=16)
 
 
-def _ranges(body: Body) -> tuple:
-    return (body.swing_lo, body.swing_hi, body.twist_lo, body.twist_hi)
+def _tree_layout(body: Body) -> Layout:
+    n, cog = body.n_segments, body.n_joints + len(body.feature_names)
+    every = make_layout(body, (cog,), (), range(n), spine=True, root=True)
+    return dataclasses.replace(
+        every,
+        full=body.root_joint != body.default_root_joint,
+        points=(),
+        point_slot=(),
+        read_slot=tuple(every.chain.position(s) for s in range(n)),
+    )
 
 
 def tree_entries(tree: Layout, phase: Layout) -> np.ndarray | None:

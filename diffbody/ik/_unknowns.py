@@ -100,15 +100,6 @@ def point_segment(body: Body, index: int) -> int:
     return body.sphere_segment[body.feature_sphere[index - n_j]]
 
 
-def path_to_top(body: Body, seg: int) -> list[int]:
-    """The segment and its ancestors, from it up to the whole body."""
-    path = []
-    while seg >= 0:
-        path.append(seg)
-        seg = int(body.parent[seg])
-    return path
-
-
 def moves_everything(body: Body, points: Iterable[int]) -> bool:
     """Whether every segment moves the effectors `points`: the center of gravity is among
     them, or the body hangs from a joint other than its default root."""
@@ -123,7 +114,7 @@ def segments_on_path(body: Body, points: Iterable[int], axes: Iterable[int] = ()
     if moves_everything(body, points):
         return set(range(body.n_segments))
     eff = [point_segment(body, i) for i in points] + list(axes)
-    return {s for e in eff for s in path_to_top(body, e)}
+    return {s for e in eff for s in body.path_to_top(e)}
 
 
 def make_layout(
@@ -162,7 +153,7 @@ def make_layout(
     if full:
         live = set(range(body.n_segments))
     else:
-        live = {s for e in eff for s in path_to_top(body, e) if _moves_above(body, s, moving)}
+        live = {s for e in eff for s in body.path_to_top(e) if _moves_above(body, s, moving)}
     bases = sorted({int(body.parent[s]) for s in live if int(body.parent[s]) not in live})
     bases += sorted({s for s in eff if s not in live} - set(bases))
     chain = make_chain(body.parent, live, bases)
@@ -203,4 +194,4 @@ def whole_tree_layout(body: Body) -> Layout:
 
 
 def _moves_above(body: Body, seg: int, moving: set[int]) -> bool:
-    return any(s in moving for s in path_to_top(body, seg))
+    return any(s in moving for s in body.path_to_top(seg))

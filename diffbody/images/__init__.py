@@ -27,9 +27,6 @@ from ._lifting import (
     LiftOptions as LiftOptions,
 )
 from ._lifting import (
-    LiftStatus as LiftStatus,
-)
-from ._lifting import (
     lift as lift,
 )
 from ._lifting import (

@@ -13,8 +13,6 @@ solver's linear solve is `_banded.BandedSchurCholesky`: each step in O(T n^3). T
 length is weakly observable: refine it only from a close start.
 """
 
-import enum
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -24,25 +22,10 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._chain import on_paths
 from .._rotations import safe_normalize
-from .._solver import FitStatus, least_squares_solver, solve
+from .._solver import least_squares_solver, solve
 from ._banded import BandedSchurCholesky, FrameResiduals, FrameUnknowns
 from ._joint_tree import JointTree
 from ._webb import check_sequence, rays
-
-
-class LiftStatus(enum.IntEnum):
-    """How a refinement ended: the values of every fit's `FitStatus`."""
-
-    CONVERGED = FitStatus.CONVERGED  # the steps stopped changing the answer
-    NOT_CONVERGED = FitStatus.NOT_CONVERGED  # max_steps ran out: the last iterate
-    FAILED = FitStatus.FAILED  # the solve left the finite numbers: the start is returned
-
-    def describe(self) -> str:
-        return {
-            "CONVERGED": "converged",
-            "NOT_CONVERGED": "not converged: the last iterate after max_steps",
-            "FAILED": "failed: the start is returned",
-        }[self.name]
 
 
 class Lifting(eqx.Module):
@@ -53,7 +36,7 @@ class Lifting(eqx.Module):
     focal: Float[Array, "*b"]  # px (the given one unless refined)
     reprojection_rms: Float[Array, "*b"]  # px, over every joint and frame
     steps: Int[Array, "*b"]  # Levenberg-Marquardt steps taken
-    status: Int[Array, "*b"]  # LiftStatus
+    status: Int[Array, "*b"]  # a FitStatus
 
 
 class LiftOptions(eqx.Module):
@@ -248,7 +231,7 @@ def refine(
 
     Returns:
         `Lifting`: lengths, joints, focal length, reprojection RMS (px), steps and a
-        `LiftStatus`; a failed solve returns its start with status FAILED, never NaN.
+        a `FitStatus`; a failed solve returns its start with status FAILED, never NaN.
     """
     options = options or LiftOptions()
     uv, depth, f = check_sequence(tree, uv, root_depth, focal, "refine")

@@ -26,7 +26,7 @@ MIN_MARKERS = 3  # a frame with fewer present markers cannot be placed: FAILED
 OUTLIER_SCALES = 3.0
 
 
-def solver(dtype) -> optx.LevenbergMarquardt:
+def make_solver(dtype) -> optx.LevenbergMarquardt:
     """The fits' Levenberg-Marquardt, stopping once a step changes the unknowns by less than
     the tolerance relative (plus as much absolute) and the residual rows by as little, both
     in root mean square over the entries. In float32, 1e-3: a thousandth of a radian turns a
@@ -35,10 +35,9 @@ def solver(dtype) -> optx.LevenbergMarquardt:
     the fit. In float64, 1e-4: what no marker sees (the clavicles and the spine under a set
     without arm markers) is held by the `PULL` alone, a curvature of PULL^2 per unit, so
     the cost, resolved to its rounding eps * cost, places it only to
-    sqrt(eps * cost) / PULL, about 1e-4 for a frame's cost of 100; a tighter tolerance
-    (1e-9 before) is met on real data only by luck, and 15 of the 73 frames of OpenSim's IK
-    setup ran out of steps at 1e-6. Noiseless data converge quadratically, so they still
-    reach a micrometre."""
+    sqrt(eps * cost) / PULL, about 1e-4 for a frame's cost of 100: a tighter tolerance is
+    met on real data only by luck (docs/benchmarks.md, "Anthropometry"). Noiseless data
+    converge quadratically, so they still reach a micrometre."""
     return least_squares_solver(tolerance(dtype, 1e-3, 1e-4), norm=optx.rms_norm)
 
 

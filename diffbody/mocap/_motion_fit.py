@@ -5,7 +5,7 @@ Each frame's rows (`_mocap_solver`): sqrt(weight) (model - measured) / `MARKER_S
 present markers (a missing marker weighs 0 in its frame) and a weak `PULL` toward the start
 moved rigidly onto the frame's pelvis markers. The frames are solved in order (`lax.scan`),
 each from its predecessor's answer, a chunk of frames per compiled call
-(`diffbody._batches.map_chunks`, the last answer carried to the next chunk).
+(`diffbody.runs._batches.map_chunks`, the last answer carried to the next chunk).
 Results are NumPy, frame axis first: poses, markers (f, n, 3) m, errors (f, n) m.
 """
 
@@ -19,13 +19,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from .._batches import map_chunks
 from .._body import Body, Pose, without_names
 from .._joint_angles import angle_names, joint_angles
 from .._programs import compiled
 from .._solver import FitStatus, Solved, solve
 from ..files._marker_trial import MarkerTrial
 from ..files._markerset_file import MarkerSet
+from ..runs._batches import map_chunks
 from ._marker_layout import mocap_layout, rigid_start
 from ._marker_points import model_markers
 from ._markerset import MarkerWarning, match_markers
@@ -35,9 +35,9 @@ from ._mocap_solver import (
     PULL,
     frame_arrays,
     make_problem_jit,
+    make_solver,
     masked_targets,
     robust_rows,
-    solver,
 )
 from ._motion_limits import LIMITS, motion_limits
 
@@ -60,7 +60,7 @@ def _solve_frame(problem, lay, offsets, scale, x_start, anchor, target, sqrt_w) 
     A frame with fewer than `MIN_MARKERS` markers keeps x_start (FAILED)."""
     args = (problem, lay, offsets, target, sqrt_w, anchor, scale)
     enough = jnp.sum(sqrt_w > 0) >= MIN_MARKERS
-    return solve(_frame_residuals, solver(x_start.dtype), x_start, args, FRAME_STEPS, enough)
+    return solve(_frame_residuals, make_solver(x_start.dtype), x_start, args, FRAME_STEPS, enough)
 
 
 # Where a solve of `_fit_frames`' scan starts: the previous solve's answer, a given start

@@ -38,7 +38,7 @@ MOTION_RANGES: dict[str, tuple] = {
     "forearm": (None, (0, 160), (-90, 90), None),
     # Wrist flexion 93 and extension 86: Macedo & Magee (Table A.1); ulnar deviation
     # (adduction) 65 and radial deviation (abduction) 25: Merck Manual Table 1; the cone 95
-    # (modelling choice, was 85).
+    # (modelling choice: it admits the 93 degrees of flexion).
     "hand": ((-93, 86), (-65, 25), None, 95),
     # Hip extension 30 and external rotation 60: 38 CFR 4.71; flexion 125, abduction 45,
     # internal rotation 45: Merck Manual Table 1; adduction 25: 38 CFR 4.71.

@@ -35,8 +35,8 @@ from ._mocap_solver import (
     PULL,
     frame_arrays,
     make_problem_jit,
+    make_solver,
     masked_targets,
-    solver,
 )
 from ._motion_limits import LIMITS, motion_limits
 
@@ -48,7 +48,7 @@ PROPORTION_SD = 0.1
 # With the radii: the breadths and depths of ANSUR II that the radial factors decide.
 RADIAL_MEASUREMENTS = ("bideltoidbreadth", "hipbreadth", "chestdepth", "headlength")
 # The length measurements of ANSUR II that the axial scale factors decide (they carry at
-# least 80 % of each: tests/fitting/test_mocap.py). Breadths, depths and the weight depend on the
+# least 80 % of each: tests/mocap/test_mocap.py). Breadths, depths and the weight depend on the
 # radii and masses.
 PRIOR_MEASUREMENTS = (
     "stature",
@@ -190,7 +190,9 @@ def _fit_static(template: Body, lay: MocapLayout, rest: Pose, static: _Static):
     init = static.problem.pose(x0.at[-6:].set(root), rest)
     static = dataclasses.replace(static, problem=make_problem(template, lay.pose, init))
     z0 = jnp.zeros(sum(lay.sizes), x0.dtype).at[: lay.sizes[0]].set(static.problem.x0)
-    z, status, steps = solve(_static_residuals, solver(z0.dtype), z0, (static, lay), STATIC_STEPS)
+    z, status, steps = solve(
+        _static_residuals, make_solver(z0.dtype), z0, (static, lay), STATIC_STEPS
+    )
     lengths, offsets, x, (log_axial, log_radial), _ = _static_state(static, lay, z)
     p = tree_markers(lay, static.problem, lengths, offsets, x)
     errors = jnp.where(present, jnp.linalg.norm(p - static.target, axis=-1), jnp.nan)
@@ -233,9 +235,9 @@ def scale_and_register(
             measurements (module docstring); a `PopulationPrior`; False: none.
         fit: what moves besides the posture, a subset of ("lengths", "radii", "offsets"):
             the log axial and radial scale factors of `SCALE_GROUPS`, each marker's offset.
-            On the shipped trials the radii bring the static errors down (the sternum's
-            from 56 to 36 mm: the subject's chest is shallower than the template's) but not
-            the walk's.
+            On the shipped trials the radii bring the static errors down (the subject's
+            chest is shallower than the template's) but not the walk's (docs/benchmarks.md,
+            "Anthropometry").
         sex: "male" or "female" for `prior=True` (default: "female" when the body's name
             starts with it, else "male").
         limits: "motion" (default): the anatomical maximum ranges (`motion_limits`), which

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._streaming import fsync_file, replace_atomically
+from ..runs._streaming import fsync_file, replace_atomically
 
 PICTURE_FRAMES = 4  # frames drawn in the PNG, evenly over the trial
 PARTIAL = ".partial"  # what the name of a file or folder being written carries

@@ -5,7 +5,7 @@ The body is scaled and registered on the static trial once; every trial is then 
 turn, and its files are written into the output folder as soon as it finishes, each whole
 or not at all (`_trial_outputs.written_whole`): `NAME.npz` (the fit's pose file), and on
 request `NAME.mot`, `NAME.model.trc`, `NAME.png`, `NAME.curves.png`; the scaled body once
-(`body.json`). Then the trial's row is appended to `trials.csv` (diffbody._streaming's
+(`body.json`). Then the trial's row is appended to `trials.csv` (diffbody.runs._streaming's
 layout: `#` header lines that say what produced the file, the column names, one row per
 finished trial, each appended in one write and fsynced). No timings go into the file: two
 runs give the same bytes but for the `# begun:` line.
@@ -19,7 +19,6 @@ status `error` and the reason; the others go on.
 
 import csv
 import glob
-import hashlib
 import io
 import os
 import time as clock
@@ -29,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._streaming import (
+from ..runs._header import BODY_KEYS, body_fields, file_sha256, header_changes
+from ..runs._streaming import (
     Interrupts,
     append_lines,
     header_text,
@@ -102,14 +102,6 @@ def trial_files(trials) -> list[Path]:
     return sorted(found, key=lambda p: (p.name, str(p)))
 
 
-def file_sha256(path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def header_fields(body, static, markerset, tasks, *, keep_zeros, axes, prior, time):
     """The summary CSV's header, in the order written. `--resume` checks all but the file
     names (`static`, `tasks`: their hashes are checked) and `begun` (UTC)."""
@@ -117,17 +109,13 @@ def header_fields(body, static, markerset, tasks, *, keep_zeros, axes, prior, ti
 
     import jax.numpy as jnp
 
-    from ..files._pose_file import structure_hash
-
     names = "\n".join([markerset.name, *markerset.names, *markerset.kinds])
     layout = np.frombuffer(names.encode(), np.uint8), np.asarray(markerset.segments)
     return [
         ("format", FORMAT),
         ("static", str(static)),
         ("static-sha256", file_sha256(static)),
-        ("body", body.name),
-        ("body-structure", structure_hash(body)),
-        ("body-dimensions", tree_hash(body)),
+        *body_fields(body),
         ("markerset", markerset.name),
         ("markerset-hash", tree_hash((layout, markerset))),
         ("tasks", str(tasks) if tasks else "(none)"),
@@ -143,26 +131,8 @@ def header_fields(body, static, markerset, tasks, *, keep_zeros, axes, prior, ti
 
 def _changes(old: dict[str, str], new: dict[str, str]) -> list[str]:
     """What differs between a summary's header (`old`) and this run's (`new`), in words."""
-    changes = []
-
-    def sha(h, key):
-        return h.get(key, "(not recorded)")[:16]
-
-    if old.get("static-sha256") != new["static-sha256"]:
-        changes.append(
-            f"the static trial changed (sha256 {sha(old, 'static-sha256')}... vs "
-            f"{sha(new, 'static-sha256')}...)"
-        )
-    body_changed = any(old.get(k) != new[k] for k in ("body", "body-structure", "body-dimensions"))
-    if body_changed:
-
-        def said(h):
-            return (
-                f"{h.get('body')}: structure {h.get('body-structure')}, "
-                f"dimensions {h.get('body-dimensions')}"
-            )
-
-        changes.append(f"the body changed ({said(old)} vs {said(new)})")
+    changes = header_changes(old, new, {"static-sha256": "the static trial"}, _SETTINGS)
+    body_changed = any(old.get(k) != new[k] for k in BODY_KEYS)
     # The set is resolved on the body: another body moves its offsets, and that is told.
     if old.get("markerset") != new["markerset"] or (
         old.get("markerset-hash") != new["markerset-hash"] and not body_changed
@@ -172,20 +142,21 @@ def _changes(old: dict[str, str], new: dict[str, str]) -> list[str]:
             f"{new['markerset']} {new['markerset-hash']})"
         )
     if old.get("tasks-sha256") != new["tasks-sha256"]:
+
+        def sha(h):
+            return h.get("tasks-sha256", "(not recorded)")[:16]
+
         changes.append(
-            f"--tasks changed from {old.get('tasks', '(not recorded)')} (sha256 "
-            f"{sha(old, 'tasks-sha256')}) to {new['tasks']} (sha256 {sha(new, 'tasks-sha256')})"
+            f"--tasks changed from {old.get('tasks', '(not recorded)')} (sha256 {sha(old)}) "
+            f"to {new['tasks']} (sha256 {sha(new)})"
         )
-    for key, option in _SETTINGS.items():
-        if old.get(key) != new[key]:
-            changes.append(f"{option} changed from {old.get(key, '(not recorded)')} to {new[key]}")
     return changes
 
 
 def _recorded(path: Path, fields, shas: dict[str, str | None]):
     """The summary's header text and its whole rows (line, cells) after checking them
     against this run; a difference is refused, naming it. Writes nothing."""
-    from .._streaming import read_results
+    from ..runs._streaming import read_results, read_rows
 
     have = read_results(str(path))
     refuse = "rerun as it was begun, or without --resume to start over"
@@ -194,18 +165,15 @@ def _recorded(path: Path, fields, shas: dict[str, str | None]):
             f"--resume {path.parent}: {path} is not a summary of format {FORMAT} with columns "
             f"{','.join(COLUMNS)}; rerun without --resume to start over"
         )
-    data = path.read_bytes()
-    lines = data[have.start : have.ends[-1] if have.ends else have.start].decode()
-    lines = lines.splitlines(True)
-    rows = list(csv.reader(lines))
-    for number, cells in enumerate(rows, start=1):
+    header, rows = read_rows(have)
+    for number, (_, cells) in enumerate(rows, start=1):
         if len(cells) != len(COLUMNS):
             raise ValueError(
                 f"--resume {path.parent}: {path}: trial row {number} has {len(cells)} cells, "
                 f"not {len(COLUMNS)} (the file was edited); rerun without --resume to start over"
             )
     changes = _changes(have.fields, dict(fields))
-    for cells in rows:
+    for _, cells in rows:
         name, sha = cells[0], cells[1] if len(cells) > 1 else ""
         if name not in shas:
             changes.append(f"the trial {name} is recorded but is not among the trials now")
@@ -214,7 +182,7 @@ def _recorded(path: Path, fields, shas: dict[str, str | None]):
             changes.append(f"the trial {name} changed (sha256 {sha[:16]}... vs {now}...)")
     if changes:
         raise ValueError(f"--resume {path.parent}: {'; '.join(changes)}; {refuse}")
-    return data[: have.start], list(zip(lines, rows)), have.ends[-1] if have.ends else have.start
+    return header, rows, have.ends[-1] if have.ends else have.start
 
 
 def noted(log, fn, *args, **kwargs):
@@ -282,7 +250,7 @@ def fit_trials(
         outputs: the optional files of each trial, names of `OUTPUTS` ("mot", "trc", "png",
             "curves").
         progress: a progress bar per trial on stderr; log: where the report lines go.
-        signals: an entered `diffbody._streaming.Interrupts`, or None for one of its own.
+        signals: an entered `diffbody.runs._streaming.Interrupts`, or None for one of its own.
             A signal stops the run between two trials' writes with `Interrupted`: the
             finished trials are in `out_dir`, and `resume=True` goes on from there.
 

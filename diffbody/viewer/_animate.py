@@ -7,7 +7,7 @@ The camera stays where it is for the whole animation and frames the union of all
 time (about 400 small NumPy calls, 0.15-0.3 s a picture), but with the scale fixed each
 sphere's pixel box has the same size in every frame, so the boxes' pixels are laid out once
 (`Raster`) and a frame is one compiled program over them, with `shade`'s depth test and
-lighting (tests/test_animate.py compares the two pixel for pixel). The forward kinematics
+lighting (tests/viewer/test_animate.py compares the two pixel for pixel). The forward kinematics
 of all frames is one vmapped, compiled call. One matplotlib figure serves every frame: its
 floor and label are drawn once and kept, and each frame lays the body's picture over them,
 pixel for pixel, and draws the caption on top (blitting).

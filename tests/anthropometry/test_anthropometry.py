@@ -338,7 +338,7 @@ def test_population_kept_in_a_folder_resumes_after_an_interrupt(subjects, tmp_pa
     reads them and scales the rest, giving what one uninterrupted call gives; other values
     or another sex are refused by name."""
     import diffbody.anthropometry._scale_to as scale_to
-    from diffbody._streaming import Interrupted
+    from diffbody.runs._streaming import Interrupted
 
     values = subjects["male"][:40, [db.MEASUREMENT_NAMES.index(k) for k in FIVE]]
     solve, calls, stop = scale_to._solve_many_jit, [], [2]

@@ -125,7 +125,7 @@ def test_a_signal_taken_where_python_ignores_exceptions_still_stops(capsys):
     """A signal handled in a gc callback (JAX's runs at every collection, often during a
     compile) or a __del__, where Python prints the exception and goes on, still stops the
     run: it is sent again once that code has returned, and nothing is printed."""
-    from diffbody._streaming import Interrupted, Interrupts
+    from diffbody.runs._streaming import Interrupted, Interrupts
 
     sent = []
 
@@ -208,11 +208,11 @@ def test_a_keyboard_interrupt_inside_a_solve_is_a_clean_stop(
 ):
     """A KeyboardInterrupt from inside a chunk's solve (not through the command's handler)
     drops that chunk, keeps the finished ones, and says so; the handlers are put back."""
-    import diffbody.ik._reach_batch as reach_batch
+    import diffbody.ik._reach_run as reach_run
 
     targets, reference = uninterrupted
     results = tmp_path / "results.csv"
-    solve, calls, stop_at = reach_batch.solve_reach_batch, [], [3]
+    solve, calls, stop_at = reach_run.solve_reach_batch, [], [3]
 
     def solve_then_stop(*args, **kwargs):
         calls.append(1)
@@ -220,7 +220,7 @@ def test_a_keyboard_interrupt_inside_a_solve_is_a_clean_stop(
             raise KeyboardInterrupt
         return solve(*args, **kwargs)
 
-    monkeypatch.setattr(reach_batch, "solve_reach_batch", solve_then_stop)
+    monkeypatch.setattr(reach_run, "solve_reach_batch", solve_then_stop)
     before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     assert main(arm_batch(targets, results) + ARM_BATCH) == 130
     assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
@@ -297,7 +297,7 @@ def test_merged_postures_name_one_spine_target_for_every_row(male50, tmp_path):
     import jax
     import jax.numpy as jnp
 
-    from diffbody.ik._batch_postures import merge_postures, write_part
+    from diffbody.runs._batch_postures import merge_postures, write_part
 
     rest = male50.rest_pose()
     assert rest.spine_target is None
@@ -327,17 +327,17 @@ ARM = dict(segments=["left_upper_arm", "left_forearm", "left_hand"], starts=1, c
 
 
 def test_python_writes_the_same_file_and_resumes(uninterrupted, tmp_path, monkeypatch):
-    """`solve_reach_batch(..., out=)` writes the command's file; a KeyboardInterrupt inside
+    """`run_reach_batch` writes the command's file; a KeyboardInterrupt inside
     a chunk's solve keeps the finished chunks and says how far (`Interrupted`, a
     KeyboardInterrupt); `resume=True` completes it; a changed setting is refused by its
     keyword."""
-    import diffbody.ik._reach_batch as reach_batch
-    from diffbody._streaming import Interrupted
+    import diffbody.ik._reach_run as reach_run
+    from diffbody.runs._streaming import Interrupted
 
     targets, reference = uninterrupted
     results = tmp_path / "results.csv"
     body = db.load_body()
-    solve, calls = reach_batch.solve_reach_batch, []
+    solve, calls = reach_run.solve_reach_batch, []
 
     def solve_then_stop(*args, **kwargs):
         calls.append(1)
@@ -345,17 +345,17 @@ def test_python_writes_the_same_file_and_resumes(uninterrupted, tmp_path, monkey
             raise KeyboardInterrupt
         return solve(*args, **kwargs)
 
-    monkeypatch.setattr(reach_batch, "solve_reach_batch", solve_then_stop)
+    monkeypatch.setattr(reach_run, "solve_reach_batch", solve_then_stop)
     with pytest.raises(KeyboardInterrupt) as stopped:
-        db.solve_reach_batch(body, ["left_hand.palm"], targets, out=results, progress=False, **ARM)
+        db.run_reach_batch(body, ["left_hand.palm"], targets, results, progress=False, **ARM)
     assert isinstance(stopped.value, Interrupted) and stopped.value.done == 4
     assert f"interrupted after 4 of {ROWS} rows; {results} holds them" in str(stopped.value)
     with pytest.raises(ValueError, match="starts= changed from 1 to 2; rerun as it was begun"):
-        db.solve_reach_batch(
-            body, ["left_hand.palm"], targets, out=results, resume=True, **(ARM | {"starts": 2})
+        db.run_reach_batch(
+            body, ["left_hand.palm"], targets, results, resume=True, **(ARM | {"starts": 2})
         )
-    run = db.solve_reach_batch(
-        body, ["left_hand.palm"], targets, out=results, resume=True, progress=False, **ARM
+    run = db.run_reach_batch(
+        body, ["left_hand.palm"], targets, results, resume=True, progress=False, **ARM
     )
     assert (run.rows, run.solved, run.out) == (ROWS, ROWS - 4, str(results))
     assert without_timestamp(results) == without_timestamp(reference)
@@ -418,7 +418,7 @@ def test_two_processes_merge_to_the_one_process_file(uninterrupted, tmp_path):
 def test_ctrl_c_while_the_targets_are_checked_writes_nothing(tmp_path, capsys, monkeypatch):
     """A Ctrl-C before the results file is begun (here while a long targets file is still
     being checked) exits 130 without a traceback and writes nothing."""
-    import diffbody.ik._batch_run as batch_run
+    import diffbody.runs._batch_run as batch_run
 
     def stopped(*args):
         raise KeyboardInterrupt
@@ -433,7 +433,7 @@ def test_ctrl_c_while_the_targets_are_checked_writes_nothing(tmp_path, capsys, m
 def test_sigterm_while_the_targets_are_checked_writes_nothing(tmp_path, capsys, monkeypatch):
     """SIGTERM before the results file is begun is told as Ctrl-C is: exit 143, nothing
     written."""
-    import diffbody.ik._batch_run as batch_run
+    import diffbody.runs._batch_run as batch_run
 
     def stopped(*args):
         signal.raise_signal(signal.SIGTERM)
@@ -458,7 +458,7 @@ def test_ctrl_c_while_the_postures_are_merged_says_so_and_resumes(
 ):
     """A Ctrl-C once every row is written, while the chunks' postures are merged: told as
     the rows it holds (not as nothing written), exit 130; --resume merges them."""
-    import diffbody.ik._batch_run as batch_run
+    import diffbody.runs._batch_run as batch_run
 
     targets, reference = uninterrupted
     results = tmp_path / "results.csv"

@@ -29,7 +29,7 @@ def test_mocap_is_a_command(capsys):
 def trials(tmp_path_factory):
     """Two 4-frame slices of the shipped static trial, written as TRC files: one to scale
     on, one to fit. With all 49 markers, 4 frames and no prior, the command compiles what
-    tests/fitting/test_mocap.py compiles (the suite's persistent cache shares it)."""
+    tests/mocap/test_mocap.py compiles (the suite's persistent cache shares it)."""
     folder = tmp_path_factory.mktemp("mocap")
     static = read_trc(data_file("mocap/subject01_static.trc"))
     paths = folder / "static.trc", folder / "motion.trc"

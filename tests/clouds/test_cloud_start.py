@@ -121,7 +121,7 @@ def test_a_batch_kept_in_a_folder_resumes_after_an_interrupt(fits, male50, tmp_p
     resume=True reads it and fits the second: every cloud as the fixture's one call fits
     it. Other clouds are refused by name."""
     import diffbody.clouds._cloud_fit as sphere_fit
-    from diffbody._streaming import Interrupted
+    from diffbody.runs._streaming import Interrupted
 
     fit, _ = fits
     centers, radii, _ = (np.concatenate([a] * 2) for a in three_clouds(male50))

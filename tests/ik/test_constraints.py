@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 import diffbody as db
 from diffbody.contact import sole_spheres, support_edges
 from diffbody.contact._support import inside_distance
+from diffbody.ik._constraints import resolve_constraints
 
 FEET = ("left_foot", "right_foot")
 ARM = ("left_clavicle", "left_upper_arm", "left_forearm", "left_hand")
@@ -190,6 +191,16 @@ def test_bad_constraints_are_rejected_clearly(male50, targets, error, words):
 def test_bad_constraint_settings_name_the_field(build, words):
     with pytest.raises(ValueError, match=words):
         build()
+
+
+def test_on_floor_stands_on_the_body_s_feet_by_default(male50):
+    """`Target.on_floor()` names no segment: the body's feet (`Body.feet`), planted as when
+    they are named."""
+    pose = male50.rest_pose()
+    default = resolve_constraints(male50, [db.Target.on_floor()], pose)
+    named = resolve_constraints(male50, [db.Target.on_floor(FEET)], pose)
+    assert default.feet == named.feet == male50.feet
+    np.testing.assert_array_equal(default.sole_center, named.sole_center)
 
 
 def test_each_environment_keeps_its_own_segments_and_margin(male50):

@@ -54,7 +54,7 @@ def cases(male50):
     for name, lay in _layouts(body).items():
         slots, offsets, heights = _points(body, lay, rng)
         # Reverse mode of the whole tree is checked by the marker kernel's tests
-        # (tests/fitting/test_mocap.py, root and spine free): here it would double the
+        # (tests/mocap/test_mocap.py, root and spine free): here it would double the
         # largest compile of the suite.
         reverse = name != "whole"
         compiled = jax.jit(functools.partial(_kernel_and_jacobians, slots, reverse))

@@ -10,10 +10,11 @@ import lineax as lx
 import numpy as np
 import pytest
 
+from diffbody._statuses import FitStatus
 from diffbody.images._banded import BandedSchurCholesky, FrameResiduals, FrameUnknowns
 from diffbody.images._joint_centres import NAMES, joint_centres_from_markers, load_walk_joints
 from diffbody.images._joint_tree import default_joint_tree
-from diffbody.images._lifting import LiftOptions, LiftStatus, lift
+from diffbody.images._lifting import LiftOptions, lift
 from diffbody.images._motions import walking_motion
 from diffbody.images._pinhole import camera_around, image_sequence, project
 from diffbody.images._reflections import choose_reflections
@@ -102,8 +103,8 @@ def test_refinement_beats_webb_under_noise(tree, noisy_walk):
     # the same answer (length error 1.10 % against 1.11 % after 8; MPJPE 62.2 mm and
     # reprojection 1.121 px both).
     status = int(lifted.status)
-    assert status == LiftStatus.CONVERGED or (
-        status == LiftStatus.NOT_CONVERGED and int(lifted.steps) == LiftOptions().max_steps
+    assert status == FitStatus.CONVERGED or (
+        status == FitStatus.NOT_CONVERGED and int(lifted.steps) == LiftOptions().max_steps
     )
     assert float(lifted.reprojection_rms) < 2.0  # px, at 1 px noise
     groups = tree.length_groups(True)  # symmetric lengths by default
@@ -136,7 +137,7 @@ def test_refinement_failure_is_a_status(tree, noisy_walk):
     out = refine(
         tree, seq.uv, seq.root_depth, F, start, np.full(tree.n_parts, 5.0), LiftOptions(max_steps=2)
     )
-    assert int(out.status) == LiftStatus.NOT_CONVERGED and int(out.steps) == 2
+    assert int(out.status) == FitStatus.NOT_CONVERGED and int(out.steps) == 2
     assert np.all(np.isfinite(np.asarray(out.joints))) and np.all(
         np.isfinite(np.asarray(out.lengths))
     )

@@ -1,5 +1,5 @@
 """Motion capture: scaling and registration on a static trial, the posture of every frame,
-and the bone descriptors over time (diffbody.fitting: _static_fit, _motion_fit;
+and the bone descriptors over time (diffbody.mocap: _static_fit, _motion_fit;
 diffbody._descriptors).
 
 The synthetic subject is the male median body scaled by known axial factors, with the
@@ -428,7 +428,7 @@ def test_joint_angles_match_opensim_on_the_shipped_walk(shipped, tmp_path):
 def test_float64_motion_fit_converges_on_real_data(male50):
     """Regression: in float64 every frame of the shipped walk ran out of steps (tolerance
     1e-9, below what the cost resolves of the directions only the weak pull holds,
-    `_mocap_solver.solver`). 13 frames (0.4-0.6 s) from the static fit in float64: every
+    `_mocap_solver.make_solver`). 13 frames (0.4-0.6 s) from the static fit in float64: every
     one converged, within the step limit, at float32's marker RMS (19.7-21 mm)."""
     static = db.read_trc(data_file("mocap/subject01_static.trc"))
     walk = db.read_trc(data_file("mocap/subject01_walk1.trc"))

@@ -15,6 +15,7 @@ at most a final partial line, which `read_results` does not count.
 """
 
 import _thread
+import csv
 import hashlib
 import os
 import signal
@@ -218,6 +219,15 @@ def read_results(path: str) -> Results:
     if columns is None:
         raise ValueError(f"{path}: no column names after the header lines")
     return Results(path, fields, columns, start, ends, first)
+
+
+def read_rows(results: Results) -> tuple[bytes, list[tuple[str, list[str]]]]:
+    """The header of a results file read back (`read_results`), up to its first row, and its
+    whole rows, each as (its line, its cells)."""
+    with open(results.path, "rb") as f:
+        data = f.read(results.ends[-1] if results.ends else results.start)
+    lines = data[results.start :].decode().splitlines(True)
+    return data[: results.start], list(zip(lines, csv.reader(lines)))
 
 
 def truncate(path: str, size: int) -> None:

@@ -12,8 +12,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._progress import Progress
 from ._chunk_store import ChunkStore
-from ._progress import Progress
 from ._streaming import Interrupted, Interrupts
 
 

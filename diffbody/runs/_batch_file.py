@@ -1,4 +1,4 @@
-"""The results of a streamed reach batch (`solve_reach_batch(..., out=)`, `diffbody batch`):
+"""The results of a streamed reach batch (`run_reach_batch`, `diffbody batch`):
 a CSV appended a chunk at a time, its postures as one pose file per chunk until the run is
 complete, then merged (docs/design.md, section 6).
 
@@ -22,8 +22,9 @@ from datetime import datetime, timezone
 import jax
 import numpy as np
 
-from .._streaming import read_results, tree_hash, truncate
-from ..files._pose_file import structure_hash
+from .._statuses import ReachStatus
+from ._header import body_fields, header_changes
+from ._streaming import read_results, tree_hash, truncate
 
 FORMAT = "diffbody.batch/1"  # the results CSV's layout, its first header line
 
@@ -70,43 +71,30 @@ def process_path(out: str, process: int, count: int) -> str:
 
 
 def header_fields(
-    *,
-    input: str,
-    sha256: str,
-    total: int,
-    body,
-    effectors,
-    segments,
-    spine: bool,
-    starts: int,
-    chunk: int,
-    standing: bool,
-    constraints,
-    init,
-    max_steps: int,
-    tol_position: float,
+    input: str, sha256: str, total: int, body, effectors, chunk: int, settings: dict
 ) -> list[tuple[str, str]]:
-    """The results CSV's header: what produced it, in the order written. `--resume` checks
-    all but `input` (the file may move; its hash is checked), `rows` (follows from the hash)
-    and `begun` (the time the file was begun, UTC)."""
+    """The results CSV's header: what produced it, in the order written: the input (its name,
+    hash and rows), the body, the effectors, the chunk size and `settings` (the solve's
+    `segments`, `spine`, `starts`, `standing`, `constraints`, `init`, `max_steps`,
+    `tol_position`). `--resume` checks all but `input` (the file may move; its hash is
+    checked), `rows` (follows from the hash) and `begun` (the time the file was begun, UTC)."""
+    s = settings
     return [
         ("format", FORMAT),
         ("input", input),
         ("input-sha256", sha256),
         ("rows", str(total)),
-        ("body", body.name),
-        ("body-structure", structure_hash(body)),
-        ("body-dimensions", tree_hash(body)),
+        *body_fields(body),
         ("effectors", " ".join(effectors)),
-        ("segments", " ".join(segments) if segments else "(all)"),
-        ("spine", "on" if spine else "off"),
-        ("starts", str(starts)),
+        ("segments", " ".join(s["segments"]) if s["segments"] else "(all)"),
+        ("spine", "on" if s["spine"] else "off"),
+        ("starts", str(s["starts"])),
         ("chunk-size", str(chunk)),
-        ("standing", "on" if standing else "off"),
-        ("constraints", f"{len(constraints)} ({tree_hash(list(constraints))})"),
-        ("start-pose", "standard position" if init is None else tree_hash(init)),
-        ("max-steps", str(max_steps)),
-        ("tol-position", f"{tol_position:g}"),
+        ("standing", "on" if s["standing"] else "off"),
+        ("constraints", f"{len(s['constraints'])} ({tree_hash(list(s['constraints']))})"),
+        ("start-pose", "standard position" if s["init"] is None else tree_hash(s["init"])),
+        ("max-steps", str(s["max_steps"])),
+        ("tol-position", f"{s['tol_position']:g}"),
         ("float", np.dtype(jax.numpy.result_type(float)).name),  # JAX_ENABLE_X64 changes rows
         ("begun", datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")),
     ]
@@ -122,8 +110,6 @@ def columns(effectors) -> list[str]:
 
 def status_names(status) -> list[str]:
     """ReachStatus codes as the CSV and pose files name them."""
-    from ._reach import ReachStatus
-
     return [ReachStatus(int(s)).name.lower() for s in status]
 
 
@@ -151,29 +137,6 @@ def rows_reached(out: str, effectors) -> int:
         return sum(all(row[f"{e}.reached"] == "1" for e in effectors) for row in rows)
 
 
-def changes(old: dict[str, str], new: dict[str, str], names: dict[str, str]) -> list[str]:
-    """What differs between a results file's header (`old`) and this run's (`new`), each
-    told in words (`names`: what each setting is called where it was given); empty when the
-    run may go on with the file."""
-    told = []
-    if old.get("input-sha256") != new["input-sha256"]:
-        was = old.get("input-sha256", "(not recorded)")[:16]
-        told.append(f"the input file changed (sha256 {was}... vs {new['input-sha256'][:16]}...)")
-    if any(old.get(key) != new[key] for key in ("body", "body-structure", "body-dimensions")):
-
-        def said(h):
-            return (
-                f"{h.get('body')}: structure {h.get('body-structure')}, "
-                f"dimensions {h.get('body-dimensions')}"
-            )
-
-        told.append(f"the body changed ({said(old)} vs {said(new)})")
-    for key, name in names.items():
-        if old.get(key) != new[key]:
-            told.append(f"{name} changed from {old.get(key, '(not recorded)')} to {new[key]}")
-    return told
-
-
 def check_header(have, fields, names, out: str, resume_option: str) -> None:
     """Refuse to go on with results `have` (`read_results`) begun by another run, naming
     what changed."""
@@ -184,7 +147,7 @@ def check_header(have, fields, names, out: str, resume_option: str) -> None:
             f"{'says ' + repr(found) if found else 'is missing'}); start over without "
             f"{resume_option}"
         )
-    told = changes(have.fields, dict(fields), names)
+    told = header_changes(have.fields, dict(fields), {"input-sha256": "the input file"}, names)
     if told:
         raise ValueError(
             f"{resume_option} {out}: {'; '.join(told)}; rerun as it was begun, or without "

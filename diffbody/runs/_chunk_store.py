@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._header import BODY_KEYS, header_changes
 from ._streaming import fsync_file, replace_atomically
 
 FORMAT = "diffbody.chunks/1"
@@ -39,11 +40,8 @@ class ChunkStore:
         if resume and os.path.exists(record):
             with open(record, encoding="utf-8") as f:
                 old = json.load(f)
-            changed = [
-                f"{key} changed from {old.get(key, '(not recorded)')} to {value}"
-                for key, value in fields.items()
-                if old.get(key) != value
-            ]
+            settings = {key: key for key in fields if key not in BODY_KEYS}
+            changed = header_changes(old, fields, {}, settings)
             if changed:
                 raise ValueError(
                     f"resume=True {path}: {'; '.join(changed)}; call again as it was begun, "

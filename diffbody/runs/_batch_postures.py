@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from .._spine import spine_angles
-from .._streaming import fsync_file
 from ..files._pose_file import SCHEMA, read_document, save_pose, structure_hash
 from . import _batch_file as bf
+from ._streaming import fsync_file
 
 
 def write_part(parts: str, index: int, body, result, xyz, effectors) -> None:

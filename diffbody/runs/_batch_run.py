@@ -1,7 +1,7 @@
-"""A reach batch written to a file as it goes (`solve_reach_batch(..., out=)`, `diffbody
-batch`): read a chunk of targets, solve it, write its postures and then its rows, repeat;
-resumable after an interrupt, and spread over processes with `jax.distributed`
-(docs/design.md, section 6; the file's layout: `_batch_file`).
+"""A reach batch written to a file as it goes (`run_reach_batch`, `diffbody batch`): read a
+chunk of targets, solve it, write its postures and then its rows, repeat; resumable after an
+interrupt, and spread over processes with `jax.distributed` (docs/design.md, section 6; the
+file's layout: `_batch_file`).
 
 A chunk is the unit of work and of writing. Every chunk has `chunk` rows (the last padded
 with NaN rows, flagged invalid at once and dropped), so every chunk runs the same compiled
@@ -23,7 +23,11 @@ import jax
 import numpy as np
 
 from .._progress import Progress
-from .._streaming import (
+from ..files._pose_file import PoseRecord, load_pose
+from ..files._targets_file import scan_targets, target_chunks
+from . import _batch_file as bf
+from ._batch_postures import merge_postures, write_part
+from ._streaming import (
     Interrupted,
     Interrupts,
     append_lines,
@@ -31,15 +35,11 @@ from .._streaming import (
     read_results,
     replace_atomically,
 )
-from ..files._pose_file import PoseRecord, load_pose
-from ..files._targets_file import scan_targets, target_chunks
-from . import _batch_file as bf
-from ._batch_postures import merge_postures, write_part
 
 
 @dataclass(frozen=True)
 class BatchRun:
-    """What `solve_reach_batch(..., out=)` wrote: the results CSV `out` (one row per target),
+    """What `run_reach_batch` wrote: the results CSV `out` (one row per target),
     the postures file `poses` beside it, the number of `rows` and of rows whose every
     target was `reached`, and how many rows this call solved (`solved`; fewer than `rows`
     when it resumed an interrupted run, 0 when the run was complete)."""
@@ -96,57 +96,25 @@ def stream_reach_batch(
     effectors: Sequence[str],
     targets,
     out: str | os.PathLike,
+    settings: dict,
     *,
     resume: bool,
     chunk_size: int,
     progress: bool,
-    init=None,
-    spine: bool = True,
-    standing: bool = True,
-    constraints: Sequence = (),
-    segments: Sequence[str] | None = None,
-    starts: int = 8,
-    max_steps: int = 30,
-    tol_position: float = 1e-3,
-    devices=None,
     names: dict[str, str] = bf.KEYWORDS,
     resume_option: str = "resume=True",
 ) -> BatchRun:
-    """`solve_reach_batch(..., out=)`: see there; `solve` is `solve_reach_batch`, called on
-    each chunk. `names` and `resume_option` word the refusals as the caller's user gave the
-    settings (the command line's options)."""
+    """`run_reach_batch`: see there. `solve(xyz, chunk)` is one chunk's `ReachResult` (host
+    arrays), `settings` what decides a row (`bf.header_fields`). `names` and
+    `resume_option` word the refusals as the caller's user gave the settings (the command
+    line's options)."""
     out, effectors = os.fspath(out), list(effectors)
     source = _source(targets, len(effectors))
     if source.path is not None and os.path.exists(out) and os.path.samefile(out, source.path):
         raise ValueError(f"{out}: is the targets file; give another file name for the results")
     chunk = min(int(chunk_size), source.total)
     fields = bf.header_fields(
-        input=source.name,
-        sha256=source.sha256,
-        total=source.total,
-        body=body,
-        effectors=effectors,
-        segments=segments,
-        spine=spine,
-        starts=starts,
-        chunk=chunk,
-        standing=standing,
-        constraints=constraints,
-        init=init,
-        max_steps=max_steps,
-        tol_position=tol_position,
-    )
-    settings = dict(
-        solve=solve,
-        devices=devices,
-        init=init,
-        spine=spine,
-        standing=standing,
-        constraints=constraints,
-        segments=segments,
-        starts=starts,
-        max_steps=max_steps,
-        tol_position=tol_position,
+        source.name, source.sha256, source.total, body, effectors, chunk, settings
     )
     count, process = jax.process_count(), jax.process_index()
     n_chunks = -(-source.total // chunk)
@@ -162,7 +130,7 @@ def stream_reach_batch(
         try:
             solved = _run_share(
                 body, effectors, source, path, fields, names, share, chunk, resume,
-                resume_option, progress, settings, signals,
+                resume_option, progress, solve, signals,
             )  # fmt: skip
         except Interrupted as e:
             stop = e
@@ -185,7 +153,7 @@ def stream_reach_batch(
 
 def _run_share(
     body, effectors, source, path, fields, names, share, chunk, resume, resume_option,
-    progress, settings, signals,
+    progress, solve, signals,
 ) -> int:  # fmt: skip
     """Solve this process's chunks not yet in `path` and append them; the rows solved. An
     interrupt (or a KeyboardInterrupt from inside a solve) is raised as `Interrupted`
@@ -216,7 +184,7 @@ def _run_share(
             at = index * chunk
             if index not in share or at - first < done:
                 continue
-            result = _solve_chunk(body, effectors, xyz, chunk, settings)
+            result = _solve_chunk(solve, xyz, chunk)
             text = bf.rows_text(result, at)
             with signals.held():  # the chunk's postures, then its rows: a row has its posture
                 write_part(parts, index, body, result, xyz, effectors)
@@ -242,17 +210,14 @@ def _with_process(fields, share: range, chunk: int):
     return fields[:-1] + [line] + fields[-1:]
 
 
-def _solve_chunk(body, effectors, xyz, chunk: int, settings):
+def _solve_chunk(solve, xyz: np.ndarray, chunk: int):
     """One chunk's `ReachResult` (host arrays, one row per target row)."""
-    settings = dict(settings)
-    solve = settings.pop("solve")
     m, k = xyz.shape[:2]
     # The last chunk is padded to the others' size with NaN rows, so that every chunk runs
     # the same compiled solves; a NaN row is flagged invalid at once and costs no further
     # starts. The padding is dropped.
     padded = np.concatenate([xyz, np.full((chunk - m, k, 3), np.nan)]) if m < chunk else xyz
-    result = solve(body, effectors, padded, chunk_size=chunk, progress=False, **settings)
-    return jax.tree.map(lambda a: np.asarray(a)[:m], result)
+    return jax.tree.map(lambda a: np.asarray(a)[:m], solve(padded, chunk))
 
 
 def _finish_processes(out, fields, total, chunk, n_chunks, body, effectors) -> None:
