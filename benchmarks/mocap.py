@@ -21,10 +21,11 @@ Data: one adult walking (41 markers, 60 Hz, 151 frames) and a static trial (49 m
    `fit_motion` with the robust scale of the static fit (`StaticFit.marker_scale`).
    On real recordings in general the goal is AddBiomechanics' published figure, about
    1.5 cm marker RMS on running and walking trials; one trial cannot measure it.
-2. **Joint angles**: the ISB angles (`joint_angles`) of both fits against OpenSim's IK
-   answer over its 73 frames, after matching signs (`opensim_sign`): RMS difference and
-   mean offset per angle; goal <= 5 degrees for hip flexion, knee flexion and ankle
-   dorsiflexion on both sides.
+2. **Joint angles**: OpenSim's coordinates of both fits as `diffbody mocap --mot` writes
+   them (`opensim_coordinates`, read in gait2354's frames placed through its Scale marker
+   set: `model_frames`), against OpenSim's IK answer over its 73 frames, as written, no sign
+   applied: RMS difference and mean offset per coordinate; goal <= 5 degrees for hip
+   flexion, knee angle and ankle angle on both sides.
 3. **OpenSim's own set-up files**: OpenSim's marker set (gait2354_Scale_MarkerSet.xml,
    `load_opensim_markerset`) against opensim-gait.json, both restricted to the markers
    OpenSim's set has, both weighted by the IK tasks (`read_ik_tasks`), the whole walk; goal:
@@ -187,36 +188,36 @@ def first_frame_goals(fit_ik, fit_all, run) -> list:
 
 
 def angle_plot(times, ours: dict, os_times, opensim: dict, path: Path) -> None:
-    """The sagittal angles of the whole-trial fit over OpenSim's (README's picture)."""
+    """The sagittal coordinates of the whole-trial fit over OpenSim's (README's picture)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from diffbody import opensim_sign
-
     fig, axes = plt.subplots(2, 3, figsize=(12, 5.5), sharex=True)
     for col, joint in enumerate(("hip_flexion", "knee_angle", "ankle_angle")):
         for row, side in enumerate("rl"):
             name, ax = f"{joint}_{side}", axes[row, col]
-            ax.plot(times, opensim_sign(name) * ours[name], color="crimson", label="diffbody")
+            ax.plot(times, ours[name], color="crimson", label="diffbody")
             ax.plot(os_times, opensim[name], color="tab:blue", label="OpenSim IK (Gait2354)")
             ax.set_title(name, fontsize=9)
             ax.set_ylabel("degrees", fontsize=8)
     for ax in axes[1]:
         ax.set_xlabel("time (s)")
     axes[0, 0].legend(fontsize=8)
-    fig.suptitle("ISB joint angles of the walk (OpenSim's sign) against OpenSim's IK", fontsize=10)
+    fig.suptitle("OpenSim's coordinates of the walk, as written, against OpenSim's IK", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
 
 
-def angle_goals(body, fit_ik, fit_all, data: Path, ik, run, out: Path | None) -> list:
-    """ISB joint angles of both fits against OpenSim's IK answer (its run here, else its
-    shipped answer), per angle with an OpenSim counterpart: RMS difference and mean offset
-    after matching signs; goals on the sagittal ones."""
-    from diffbody import opensim_sign, read_mot
+def angle_goals(static_fit, fit_ik, fit_all, data: Path, ik, run, out: Path | None) -> list:
+    """OpenSim's coordinates of both fits, as `diffbody mocap --mot` writes them, against
+    OpenSim's IK answer (its run here, else its shipped answer), per coordinate both have:
+    RMS difference and mean offset; goals on the sagittal ones."""
+    from diffbody import coordinate_names, model_frames, read_model_markers, read_mot
+    from diffbody.files import data_file
+    from diffbody.mocap._trial_outputs import DEFAULT_MODEL
 
     if ik is not None:
         os_times, opensim = ik.times, dict(zip(ik.coordinates, ik.values.T))
@@ -224,14 +225,18 @@ def angle_goals(body, fit_ik, fit_all, data: Path, ik, run, out: Path | None) ->
     else:
         os_times, opensim = read_mot(data / _opensim.IK_REFERENCE)
         source = f"OpenSim's shipped answer ({_opensim.IK_REFERENCE})"
+    # The model the command's .mot drives by default: gait2354, through its Scale marker set.
+    markers = read_model_markers(data_file(DEFAULT_MODEL))
+    frames = model_frames(static_fit.body, static_fit.markerset, markers)
     ours = {}
     for label, fit in (("OpenSim's setup", fit_ik), ("whole trial", fit_all)):
-        angles = fit.angles(body)
-        frames = np.abs(np.asarray(fit.times)[:, None] - os_times[None, :]).argmin(0)
-        ours[label] = {k: v[frames] for k, v in angles.items()}
+        coordinates = fit.coordinates(static_fit.body, frames)
+        frames_at = np.abs(np.asarray(fit.times)[:, None] - os_times[None, :]).argmin(0)
+        ours[label] = {k: v[frames_at] for k, v in coordinates.items()}
     if out is not None:
-        angle_plot(fit_all.times, angles, os_times, opensim, out / "mocap_angles.png")
-    names = [n for n in ours["whole trial"] if n in opensim and opensim_sign(n) != 0]
+        angle_plot(fit_all.times, coordinates, os_times, opensim, out / "mocap_angles.png")
+    rotations = [n for n in coordinate_names() if not n.startswith("pelvis_t")]
+    names = [n for n in rotations if n in opensim]
     table = run.table(
         "joint-angles",
         ["angle", "RMS, OpenSim's setup (deg)", "RMS, whole trial (deg)", "mean offset (deg)"],
@@ -243,7 +248,7 @@ def angle_goals(body, fit_ik, fit_all, data: Path, ik, run, out: Path | None) ->
     for name in names:
         figures = []
         for label in ("OpenSim's setup", "whole trial"):
-            d = opensim_sign(name) * ours[label][name] - opensim[name]
+            d = ours[label][name] - opensim[name]
             figures.append((float(np.sqrt(np.mean(d**2))), float(np.mean(d))))
         (rms_ik, _), (rms_all, offset) = figures
         print(f"  {name:<18}{rms_ik:10.2f}{rms_all:10.2f}{offset:+9.2f}")
@@ -578,7 +583,7 @@ def main() -> None:
     )
     goals += first_frame_goals(fit_ik, fit_all, run)
     out = results.out_dir(args.out, args.quick)
-    goals += angle_goals(static_fit.body, fit_ik, fit_all, args.data, ik, run, out)
+    goals += angle_goals(static_fit, fit_ik, fit_all, args.data, ik, run, out)
     goals.append(markerset_goal(body, static, walk, args.data, run))
     goals.append(fault_goal(static_fit, registered, walk, fit_all, run))
     if ik is not None:

@@ -11,10 +11,11 @@ from typing import TYPE_CHECKING
 from . import _memory_maps  # noqa: F401  (empties JAX's caches before the map limit crashes XLA)
 from ._body import Body, Pose, Spine
 from ._descriptors import descriptors
-from ._joint_angles import angle_names, joint_angles, opensim_sign
+from ._joint_angles import angle_names, joint_angles
 from ._kinematics import Kinematics, forward
 from ._limits import STOP_COLUMNS, angles_from_swing, stop_violation, swing_vector, within_limits
 from ._local_frames import bone_descriptors, local_frame, local_frames, smooth_reference
+from ._opensim_coordinates import coordinate_names, opensim_coordinates
 from ._orientation import (
     azimuth_polar_to_inclination_azimuth,
     azimuth_polar_to_vector,
@@ -51,13 +52,7 @@ _FAMILIES = {
         "scale_to",
         "scale_to_percentile",
     ),
-    "contact": (
-        "Contact",
-        "ContactReport",
-        "Environment",
-        "contact_report",
-        "sphere_pairs",
-    ),
+    "contact": ("Contact", "ContactReport", "Environment", "contact_report", "sphere_pairs"),
     "export": (
         "SingularJointsWarning",
         "export_mjcf",
@@ -85,6 +80,7 @@ _FAMILIES = {
         "read_c3d",
         "read_ik_tasks",
         "read_markers",
+        "read_model_markers",
         "read_mot",
         "read_trc",
         "write_trc",
@@ -109,6 +105,7 @@ _FAMILIES = {
         "fit_motion",
         "fit_trials",
         "match_markers",
+        "model_frames",
         "motion_limits",
         "scale_and_register",
         "scale_offsets",
@@ -288,6 +285,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         fit_motion,
         fit_trials,
         match_markers,
+        model_frames,
         motion_limits,
         scale_and_register,
         scale_offsets,
@@ -392,9 +390,12 @@ __all__ = [
     "motion_limits",
     "load_opensim_markerset",
     "read_ik_tasks",
+    "read_model_markers",
+    "model_frames",
     "joint_angles",
     "angle_names",
-    "opensim_sign",
+    "opensim_coordinates",
+    "coordinate_names",
     "MotionFileError",
     "read_mot",
     "write_mot",

@@ -39,31 +39,33 @@ about an axis of the proximal frame (1), the floating axis (2) and an axis of th
 frame (3). The left side is mirrored in the sagittal plane first (Wu 2002), so
 flexion, adduction and internal rotation have the same sign on both sides.
 
-| name (_r, _l) | joint: sequence, angle | positive (ISB) | OpenSim |
+| name (_r, _l) | joint: sequence, angle | positive (ISB) | OpenSim coordinate |
 | --- | --- | --- | --- |
-| hip_flexion | pelvis -> thigh: Z-X-Y, 1st | flexion | +1 (a) |
-| hip_adduction | 2nd | adduction | +1 (a) |
-| hip_rotation | 3rd | internal rotation | +1 (a) |
-| knee_angle | thigh -> shank: Z-X-Y, -(1st) | flexion (Grood & Suntay) | -1 (b) |
+| hip_flexion | pelvis -> thigh: Z-X-Y, 1st | flexion | hip_flexion (a) |
+| hip_adduction | 2nd | adduction | hip_adduction (a) |
+| hip_rotation | 3rd | internal rotation | hip_rotation (a) |
+| knee_flexion | thigh -> shank: Z-X-Y, -(1st) | flexion (Grood & Suntay) | -knee_angle (b) |
 | knee_adduction | 2nd | adduction (varus) | - (b) |
 | knee_rotation | 3rd | internal rotation | - (b) |
-| ankle_angle | shank -> foot: Z-X-Y, 1st | dorsiflexion | +1 (c) |
+| ankle_angle | shank -> foot: Z-X-Y, 1st | dorsiflexion | ankle_angle (c) |
 | ankle_inversion | 2nd | inversion | - (c) |
 | ankle_rotation | 3rd | internal rotation (foot adduction) | - (c) |
-| lumbar_extension | pelvis -> thorax: Z-X-Y, 1st | extension (d) | +1 (d) |
-| lumbar_bending | 2nd | bending to the right | +1 (d) |
-| lumbar_rotation | 3rd | axial rotation to the left | +1 (d) |
+| lumbar_extension | pelvis -> thorax: Z-X-Y, 1st | extension (d) | lumbar_extension (d) |
+| lumbar_bending | 2nd | bending to the right | lumbar_bending (d) |
+| lumbar_rotation | 3rd | axial rotation to the left | lumbar_rotation (d) |
 | shoulder_elevation_plane | thorax -> upper arm: Y-X-Y, 1st | 0 abduction, 90 flexion | - |
 | shoulder_elevation | 2nd | negative: raising the arm (e) | - |
 | shoulder_rotation | 3rd | internal rotation | - |
-| arm_flex | thorax -> upper arm: Z-X-Y, 1st | flexion | +1 (f) |
-| arm_add | 2nd | adduction | +1 (f) |
-| arm_rot | 3rd | internal rotation | +1 (f) |
-| elbow_flex | upper arm -> forearm: Z-X-Y, 1st | flexion | +1 (g) |
+| arm_flex | thorax -> upper arm: Z-X-Y, 1st | flexion | arm_flex (f) |
+| arm_add | 2nd | adduction | arm_add (f) |
+| arm_rot | 3rd | internal rotation | arm_rot (f) |
+| elbow_flex | upper arm -> forearm: Z-X-Y, 1st | flexion | elbow_flex (g) |
 
-"OpenSim": what to multiply our angle by to compare it with the coordinate of the same name
-in OpenSim's gait models (gait2354, gait2392, Rajagopal 2016; `opensim_sign`); "-": they have
-none. How the coordinates differ besides the sign:
+"OpenSim coordinate": the coordinate of OpenSim's gait models (gait2354, gait2392, Rajagopal
+2016) that the angle becomes (`diffbody._opensim_coordinates`); an ISB angle carries an OpenSim
+coordinate's name only where it has that coordinate's sign: the knee's flexion is ISB's
+`knee_flexion`, OpenSim's `knee_angle` is its negative. "-": the gait models have none. How the
+coordinates differ besides the sign:
 
 (a) The same Z-X-Y sequence between the model's pelvis and femur frames, whose neutral is
     not our standing one: expect offsets of a few degrees (the shipped walk's hip flexion:
@@ -130,7 +132,7 @@ LIMB_JOINTS: tuple[tuple[str, str, str, str, tuple[str, ...], tuple[float, ...]]
         "{side}_thigh",
         "{side}_shank",
         "zxy",
-        ("knee_angle", "knee_adduction", "knee_rotation"),
+        ("knee_flexion", "knee_adduction", "knee_rotation"),
         (-1.0, 1.0, 1.0),
     ),
     (
@@ -161,23 +163,6 @@ LIMB_JOINTS: tuple[tuple[str, str, str, str, tuple[str, ...], tuple[float, ...]]
 )
 LUMBAR_NAMES = ("lumbar_extension", "lumbar_bending", "lumbar_rotation")
 
-# OpenSim's sign for each of our angles that a gait model (gait2354, gait2392, Rajagopal)
-# also has: multiply ours by it to compare (module docstring's table). Side-free names.
-OPENSIM_SIGNS: dict[str, float] = {
-    "hip_flexion": 1.0,
-    "hip_adduction": 1.0,
-    "hip_rotation": 1.0,
-    "knee_angle": -1.0,
-    "ankle_angle": 1.0,
-    "lumbar_extension": 1.0,
-    "lumbar_bending": 1.0,
-    "lumbar_rotation": 1.0,
-    "arm_flex": 1.0,
-    "arm_add": 1.0,
-    "arm_rot": 1.0,
-    "elbow_flex": 1.0,
-}
-
 
 def angle_names() -> tuple[str, ...]:
     """The keys of `joint_angles`' result, in its order."""
@@ -186,18 +171,6 @@ def angle_names() -> tuple[str, ...]:
         for suffix, _ in SIDES:
             names += [f"{n}_{suffix}" for n in joint_names]
     return tuple(names) + LUMBAR_NAMES
-
-
-def opensim_sign(name: str) -> float:
-    """What to multiply our angle `name` by to compare it with the OpenSim coordinate of
-    the same name (module docstring); KeyError for an angle the gait models do not have."""
-    base = name[:-2] if name.endswith(("_r", "_l")) else name
-    if base not in OPENSIM_SIGNS:
-        raise KeyError(
-            f"{name!r} has no counterpart in OpenSim's gait models; those that do: "
-            + ", ".join(sorted(OPENSIM_SIGNS))
-        )
-    return OPENSIM_SIGNS[base]
 
 
 def thorax_segment(body: Body) -> int:
@@ -248,7 +221,13 @@ def anatomical_frames(body: Body, pose: Pose) -> Float[Array, "n_seg 3 3"]:
     """Every segment's ISB anatomical frame in the world, R_world_anatomical: its twisted
     cross of axes turned by the fixed rotation that makes it X forward, Y up, Z right in
     the standard position (module docstring)."""
-    R_world_twisted = forward(body, pose).R_world_twisted
+    return anatomical_of_twisted(body, forward(body, pose).R_world_twisted)
+
+
+def anatomical_of_twisted(
+    body: Body, R_world_twisted: Float[Array, "n_seg 3 3"]
+) -> Float[Array, "n_seg 3 3"]:
+    """`anatomical_frames` from the twisted frames of `forward`."""
     R_world_rest = forward(body, body.rest_pose()).R_world_twisted
     R_segment_anatomical = jnp.swapaxes(R_world_rest, -1, -2) @ jnp.asarray(
         R_WORLD_ISB, R_world_rest.dtype
@@ -258,7 +237,7 @@ def anatomical_frames(body: Body, pose: Pose) -> Float[Array, "n_seg 3 3"]:
 
 def joint_angles(body: Body, pose: Pose) -> dict[str, Float[Array, ""]]:
     """The ISB joint angles of a pose, in degrees (module docstring: frames, sequences,
-    signs, names, and what to multiply each by to compare with OpenSim).
+    signs, names, and the OpenSim coordinate each becomes).
 
     Pure JAX: compose it under jax.jit / jax.vmap / jax.grad (batching is jax.vmap over
     poses). Derivatives are finite everywhere, the standard position included.
@@ -272,7 +251,11 @@ def joint_angles(body: Body, pose: Pose) -> dict[str, Float[Array, ""]]:
         name -> angle (degrees, a scalar) for every name of `angle_names()` (a dict
         through jax.jit comes back with its keys sorted).
     """
-    R = anatomical_frames(body, pose)
+    return angles_of_frames(body, anatomical_frames(body, pose))
+
+
+def angles_of_frames(body: Body, R: Float[Array, "n_seg 3 3"]) -> dict[str, Float[Array, ""]]:
+    """`joint_angles` from every segment's anatomical frame (`anatomical_frames`)."""
     mirror = jnp.asarray(MIRROR_ISB, R.dtype)
     out: dict[str, Array] = {}
     for _, proximal, distal, sequence, names, signs in LIMB_JOINTS:

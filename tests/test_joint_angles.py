@@ -15,7 +15,6 @@ from diffbody._joint_angles import (
     angle_names,
     euler_yxy,
     joint_angles,
-    opensim_sign,
     thorax_segment,
 )
 from diffbody._rotations import exp_rotvec
@@ -89,7 +88,7 @@ def test_one_axis_flexion_reads_the_applied_angle(male50, angles_of, alpha, side
     forward elbow flexion alpha; every other angle stays 0."""
     segment, theta, name = {
         "hip": ("thigh", 0.0, "hip_flexion"),
-        "knee": ("shank", np.pi, "knee_angle"),
+        "knee": ("shank", np.pi, "knee_flexion"),
         "elbow": ("forearm", 0.0, "elbow_flex"),
     }[joint]
     pose = with_rows(male50, {f"{side}_{segment}": (theta, np.pi - alpha, 0.0)})
@@ -209,10 +208,3 @@ def test_yxy_at_the_lock_is_finite():
     assert np.asarray(euler_yxy(R)) == pytest.approx([0.0, 0.0, 0.4], abs=1e-12)
     g = jax.jacrev(lambda r: euler_yxy(exp_rotvec(r)))(jnp.array([0.0, 0.4, 0.0]))
     assert np.all(np.isfinite(g))
-
-
-def test_opensim_signs():
-    assert opensim_sign("knee_angle_r") == -1.0 and opensim_sign("hip_flexion_l") == 1.0
-    assert opensim_sign("lumbar_extension") == 1.0
-    with pytest.raises(KeyError, match="no counterpart"):
-        opensim_sign("shoulder_elevation_r")

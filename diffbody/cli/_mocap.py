@@ -38,8 +38,9 @@ def add_mocap_command(sub) -> None:
         "folder of trials (its .trc and .c3d files, by name) or a quoted glob pattern "
         "('trials/*.trc'), the registration is done once and every trial fitted against it; "
         "--out is then a folder (default fits/) that gets, as each trial finishes, NAME.npz "
-        "(its fit) and the outputs asked for (--mot, --trc, --png, --curves given alone: "
-        "NAME.mot, NAME.model.trc, NAME.png, NAME.curves.png), the scaled body once "
+        "(its fit) and the outputs asked for (--mot, --angles, --trc, --png, --curves given alone: "
+        "NAME.mot, NAME.angles.mot, NAME.model.trc, NAME.png, NAME.curves.png), the scaled "
+        "body once "
         "(body.json) and a row in trials.csv (frames, status, marker RMS, faulty markers). "
         "Ctrl-C keeps the finished trials; --resume goes on from them. A trial that cannot be "
         "read or fitted is told and skipped (exit status 1).",
@@ -112,7 +113,20 @@ def add_mocap_command(sub) -> None:
     p.add_argument(
         "--mot",
         **optional,
-        help=f"ISB joint angles of every frame, degrees (OpenSim .mot){alone}.mot",
+        help="OpenSim's coordinates of every frame (degrees and metres, OpenSim's names, signs "
+        f"and zeros for --opensim-model){alone}.mot",
+    )
+    p.add_argument(
+        "--angles",
+        **optional,
+        help=f"ISB joint angles of every frame, degrees, ISB's names and signs{alone}.angles.mot",
+    )
+    p.add_argument(
+        "--opensim-model",
+        default=None,
+        metavar="MODEL",
+        help="the OpenSim model --mot drives: its .osim or its marker set .xml, whose markers "
+        "place its pelvis and torso frames (default: gait2354's Scale marker set)",
     )
     p.add_argument(
         "--trc", **optional, help=f"the model's markers of every frame (.trc){alone}.model.trc"
@@ -142,7 +156,13 @@ def several_trials(motion: str) -> bool:
     return os.path.isdir(motion) or (glob.has_magic(motion) and not os.path.exists(motion))
 
 
-_OUTPUTS = (("--png", "png"), ("--curves", "curves"), ("--mot", "mot"), ("--trc", "trc"))
+_OUTPUTS = (
+    ("--png", "png"),
+    ("--curves", "curves"),
+    ("--mot", "mot"),
+    ("--angles", "angles"),
+    ("--trc", "trc"),
+)
 
 
 def _mocap(args) -> int:
@@ -154,7 +174,7 @@ def _mocap(args) -> int:
         )
     for flag, attr in _OUTPUTS:
         if getattr(args, attr) is FLAG:
-            suffix = ".mot" if attr == "mot" else ".trc" if attr == "trc" else ".png"
+            suffix = ".mot" if attr in ("mot", "angles") else ".trc" if attr == "trc" else ".png"
             raise ValueError(f"{flag}: give a {suffix} file name (one trial: {args.motion})")
     args.out = "fit.npz" if args.out is None else args.out
     return _mocap_one(args)
@@ -197,6 +217,7 @@ def _mocap_trials(args) -> int:
                 prior=not args.no_prior,
                 time=tuple(args.time) if args.time is not None else None,
                 outputs=outputs,
+                opensim_model=args.opensim_model,
                 progress=True,
                 signals=signals,
             )
@@ -231,6 +252,7 @@ def _mocap_one(args) -> int:
         load_any_markerset,
         picture,
         save_angles,
+        save_coordinates,
         save_curves,
         save_fit,
         save_model_markers,
@@ -244,6 +266,7 @@ def _mocap_one(args) -> int:
         ("--png", args.png, ".png"),
         ("--curves", args.curves, ".png"),
         ("--mot", args.mot, ".mot"),
+        ("--angles", args.angles, ".mot"),
         ("--trc", args.trc, ".trc"),
     ):
         check_output(flag, path)
@@ -337,8 +360,13 @@ def _mocap_one(args) -> int:
     spine_path = f" and {body_path.stem}.spine.json" if scaled.spine is not None else ""
     print(f"wrote {out_path} (the fit) and {body_path}{spine_path} (the scaled body)")
     if args.mot:
-        save_angles(args.mot, out, scaled, name=f"{out_path.stem} joint angles")
-        print(f"wrote {args.mot} (ISB joint angles, degrees)")
+        name = f"{out_path.stem} OpenSim coordinates"
+        save_coordinates(args.mot, out, static_fit, scaled, name, model=args.opensim_model)
+        model = args.opensim_model or "gait2354"
+        print(f"wrote {args.mot} (OpenSim's coordinates for {model}, degrees and metres)")
+    if args.angles:
+        save_angles(args.angles, out, scaled, name=f"{out_path.stem} ISB joint angles")
+        print(f"wrote {args.angles} (ISB joint angles, degrees)")
     if args.trc:
         trc_axes = axes or "opensim"  # a TRC file is Y up unless --axes says otherwise
         save_model_markers(args.trc, out, trial, trc_axes)

@@ -31,6 +31,7 @@ from ._motion_files import (
 )
 from ._opensim_files import load_opensim_markerset as load_opensim_markerset
 from ._opensim_files import read_ik_tasks as read_ik_tasks
+from ._opensim_files import read_model_markers as read_model_markers
 from ._pose_file import (
     PoseFileError as PoseFileError,
 )

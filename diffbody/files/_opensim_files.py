@@ -259,6 +259,48 @@ def _bone_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(p - (a + t * ab)))
 
 
+def _location(where: MarkerEntry, el: ET.Element, osim_body: str | None) -> np.ndarray:
+    """A marker's `<location>`: three finite numbers (m, in its body's frame)."""
+    try:
+        location = np.array([float(v) for v in (_text(el, "location") or "").split()])
+    except ValueError:
+        location = np.array([math.nan])
+    if location.shape != (3,) or not np.all(np.isfinite(location)):
+        raise where.fail(
+            "location",
+            f"must be three finite numbers (m, in body {osim_body!r}'s frame), got "
+            f"{_text(el, 'location')!r}",
+        )
+    return location
+
+
+def _markers_of(path) -> tuple[str, ET.Element, list[tuple[str, ET.Element]]]:
+    """The file as shown, its `<MarkerSet>` and that set's markers (at least one)."""
+    shown, root = _parse(path, "marker set (.xml) or model (.osim)")
+    markerset = _one(shown, root, "MarkerSet", "marker set (.xml) or model (.osim)")
+    markers = _named_objects(shown, markerset, "Marker", "marker")
+    if not markers:
+        raise MarkerFileError(
+            f"{shown}: <MarkerSet name={markerset.get('name', '')!r}> holds no <Marker>; give "
+            "a marker set with its markers (a generic model often has none: use its marker "
+            "set file)"
+        )
+    return shown, markerset, markers
+
+
+def read_model_markers(path) -> dict[str, tuple[str, np.ndarray]]:
+    """{marker: (its OpenSim body, its location (3,) m in that body's frame)} of a marker-set
+    `.xml` or a model's `<MarkerSet>`: where the model's markers sit on its bones, which
+    locates the model's body frames on ours (`diffbody.mocap.model_frames`). Errors are
+    `MarkerFileError`s naming the file, the marker and the field."""
+    shown, _, markers = _markers_of(path)
+    out = {}
+    for name, el in markers:
+        osim_body = _body_name(el)
+        out[name] = (osim_body, _location(MarkerEntry(shown, f"marker {name!r}"), el, osim_body))
+    return out
+
+
 def load_opensim_markerset(path, body: Body) -> MarkerSet:
     """An OpenSim marker set resolved for `body`: a marker-set `.xml` (e.g.
     data/mocap/gait2354_Scale_MarkerSet.xml) or the `<MarkerSet>` of an `.osim` model.
@@ -278,15 +320,7 @@ def load_opensim_markerset(path, body: Body) -> MarkerSet:
     table lacks (listing those it knows), a body the model has no segment for, a location
     that is not three finite numbers.
     """
-    shown, root = _parse(path, "marker set (.xml) or model (.osim)")
-    markerset = _one(shown, root, "MarkerSet", "marker set (.xml) or model (.osim)")
-    markers = _named_objects(shown, markerset, "Marker", "marker")
-    if not markers:
-        raise MarkerFileError(
-            f"{shown}: <MarkerSet name={markerset.get('name', '')!r}> holds no <Marker>; give "
-            "a marker set with its markers (a generic model often has none: use its marker "
-            "set file)"
-        )
+    shown, markerset, markers = _markers_of(path)
     rest = rest_geometry(body)  # (joints, sphere centres) of the standard position
     joints = rest[0]
     known = ", ".join(OPENSIM_BODIES)
@@ -313,16 +347,7 @@ def load_opensim_markerset(path, body: Body) -> MarkerSet:
                 f"OpenSim body {osim_body!r} cannot be placed: body {body.name!r} has no "
                 f"segment {', '.join(map(repr, missing))}; the bodies known are {known}",
             )
-        try:
-            location = np.array([float(v) for v in (_text(el, "location") or "").split()])
-        except ValueError:
-            location = np.array([math.nan])
-        if location.shape != (3,) or not np.all(np.isfinite(location)):
-            raise where.fail(
-                "location",
-                f"must be three finite numbers (m, in body {osim_body!r}'s frame), got "
-                f"{_text(el, 'location')!r}",
-            )
+        location = _location(where, el, osim_body)
         anchor = joint(table.span[0], "proximal")
         d = R_STD_OSIM @ (location - np.asarray(table.proximal))
         if table.length is not None:

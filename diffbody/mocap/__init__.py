@@ -6,6 +6,7 @@ from ._markerset import MarkerWarning as MarkerWarning
 from ._markerset import match_markers as match_markers
 from ._markerset import scale_offsets as scale_offsets
 from ._markerset import world_markers as world_markers
+from ._model_frames import model_frames as model_frames
 from ._motion_fit import MotionFit as MotionFit
 from ._motion_fit import fit_motion as fit_motion
 from ._motion_limits import MOTION_RANGES as MOTION_RANGES

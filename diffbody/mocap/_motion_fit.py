@@ -21,6 +21,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._body import Body, Pose, without_names
 from .._joint_angles import angle_names, joint_angles
+from .._opensim_coordinates import coordinate_names, opensim_coordinates
 from .._programs import compiled
 from .._solver import FitStatus, Solved, solve
 from ..files._marker_trial import MarkerTrial
@@ -178,6 +179,13 @@ class MotionFit(eqx.Module):
         fn = jax.jit(jax.vmap(lambda pose: joint_angles(body, pose)))
         out = fn(self.poses)
         return {k: np.asarray(out[k]) for k in angle_names()}
+
+    def coordinates(self, body: Body, frames=None) -> dict[str, np.ndarray]:
+        """OpenSim's gait-model coordinates of every frame (`opensim_coordinates`; `frames`
+        from `model_frames`), degrees and metres, (f,) each; `body` as for `angles`."""
+        fn = jax.jit(jax.vmap(lambda pose: opensim_coordinates(body, pose, frames)))
+        out = fn(self.poses)
+        return {k: np.asarray(out[k]) for k in coordinate_names()}
 
     def pose(self, i: int) -> Pose:
         """Frame i's pose, as JAX arrays (ready for `forward`, `render`, ...)."""

@@ -13,8 +13,8 @@ from ._motion_fit import MotionFit
 JOINTS = ("hip", "knee", "ankle")  # the gait joints, drawn by default
 SIDES = (("r", "right"), ("l", "left"))
 # Legend names where the angle's own name does not say the motion (module `_joint_angles`:
-# both positive in flexion, the ankle's as dorsiflexion).
-MOTIONS = {"knee_angle": "flexion", "ankle_angle": "dorsiflexion"}
+# the ankle's is positive in dorsiflexion).
+MOTIONS = {"ankle_angle": "dorsiflexion"}
 
 
 def joint_groups(joints=JOINTS) -> list[tuple[str, tuple[str, ...]]]:

@@ -1,8 +1,9 @@
 """What a motion-capture fit writes (`diffbody mocap`, one trial or a folder of them): the
-pose file of a fit, the scaled body, the joint angles (.mot), the model's markers (.trc) and
-pictures. Each file is written whole or not at all: first under a temporary folder beside
-it (`NAME.EXT.partial/NAME.EXT`, so that a writer that puts the file's name inside it puts
-the right one), flushed to the disk, then moved over the file (`os.replace`)."""
+pose file of a fit, the scaled body, OpenSim's coordinates (.mot), the ISB joint angles
+(.angles.mot), the model's markers (.trc) and pictures. Each file is written whole or not
+at all: first under a temporary folder beside it (`NAME.EXT.partial/NAME.EXT`, so that a
+writer that puts the file's name inside it puts the right one), flushed to the disk, then
+moved over the file (`os.replace`)."""
 
 import dataclasses
 import json
@@ -19,7 +20,16 @@ from ..runs._streaming import fsync_file, replace_atomically
 PICTURE_FRAMES = 4  # frames drawn in the PNG, evenly over the trial
 PARTIAL = ".partial"  # what the name of a file or folder being written carries
 # The optional outputs of each trial: the option, and what follows NAME in the file name.
-OUTPUTS = {"mot": ".mot", "trc": ".model.trc", "png": ".png", "curves": ".curves.png"}
+OUTPUTS = {
+    "mot": ".mot",
+    "angles": ".angles.mot",
+    "trc": ".model.trc",
+    "png": ".png",
+    "curves": ".curves.png",
+}
+# The OpenSim model whose coordinates a .mot holds when none is named: gait2354, its frames
+# placed through its Scale marker set (`model_frames`).
+DEFAULT_MODEL = "mocap/gait2354_Scale_MarkerSet.xml"
 
 
 def load_any_markerset(name_or_path: str, body):
@@ -125,11 +135,28 @@ def save_fit(path: str | Path, scaled, static_fit, fit, trial) -> Path:
 
 
 def save_angles(path: str | Path, fit, scaled, name: str) -> Path:
-    """The ISB joint angles of every frame, degrees, as an OpenSim .mot, written whole."""
+    """The ISB joint angles of every frame (`joint_angles`: ISB's names and signs), degrees,
+    as a .mot file, written whole."""
     from ..files._motion_files import write_mot
 
     with written_whole(path) as tmp:
         write_mot(tmp, fit.times, fit.angles(scaled), name=name)
+    return Path(path)
+
+
+def save_coordinates(path: str | Path, fit, static_fit, scaled, name: str, model=None) -> Path:
+    """OpenSim's coordinates of every frame (`opensim_coordinates`) for `model` (an .osim or
+    an OpenSim marker set .xml; None: gait2354's), as a .mot that drives that model, written
+    whole. Its frames are placed through the model's markers and the static fit's."""
+    from ..files._data_files import data_file
+    from ..files._motion_files import write_mot
+    from ..files._opensim_files import read_model_markers
+    from ._model_frames import model_frames
+
+    markers = read_model_markers(data_file(DEFAULT_MODEL) if model is None else model)
+    frames = model_frames(static_fit.body, static_fit.markerset, markers)
+    with written_whole(path) as tmp:
+        write_mot(tmp, fit.times, fit.coordinates(scaled, frames), name=name)
     return Path(path)
 
 
@@ -225,12 +252,18 @@ def trial_cells(fit) -> list[str]:
     return [str(len(fit.times)), str(len(fit.names)), word, str(converged), rms, notes]
 
 
-def write_trial_files(out_dir, path, fit, trial, static_fit, scaled, outputs, axes) -> None:
-    """A fitted trial's files, each written whole."""
+def write_trial_files(
+    out_dir, path, fit, trial, static_fit, scaled, outputs, axes, model=None
+) -> None:
+    """A fitted trial's files, each written whole (`model`: the OpenSim model of the .mot)."""
     name = path.stem
     save_fit(out_dir / f"{name}.npz", scaled, static_fit, fit, trial)
     if "mot" in outputs:
-        save_angles(out_dir / f"{name}.mot", fit, scaled, name=f"{name} joint angles")
+        save_coordinates(
+            out_dir / f"{name}.mot", fit, static_fit, scaled, f"{name} OpenSim coordinates", model
+        )
+    if "angles" in outputs:
+        save_angles(out_dir / f"{name}.angles.mot", fit, scaled, name=f"{name} ISB angles")
     if "trc" in outputs:
         save_model_markers(out_dir / f"{name}.model.trc", fit, trial, axes or "opensim")
     if "png" in outputs:

@@ -60,6 +60,7 @@ _SETTINGS = {
     "axes": "--axes",
     "prior": "the prior (--no-prior)",
     "time": "--time",
+    "opensim-model": "--opensim-model",
     "float": "the float precision (JAX_ENABLE_X64)",
 }
 
@@ -227,6 +228,7 @@ def fit_trials(
     prior: bool = True,
     time: tuple[float, float] | None = None,
     outputs=(),
+    opensim_model=None,
     progress: bool = False,
     log=print,
     signals=None,
@@ -247,8 +249,10 @@ def fit_trials(
         keep_zeros, axes: how the marker files are read (`read_markers`: `zero_is_gap` is
             `not keep_zeros`); prior: `scale_and_register`'s; time: (t0, t1) s, the
             frames of each trial fitted.
-        outputs: the optional files of each trial, names of `OUTPUTS` ("mot", "trc", "png",
-            "curves").
+        outputs: the optional files of each trial, names of `OUTPUTS` ("mot", "angles",
+            "trc", "png", "curves").
+        opensim_model: the OpenSim model each .mot drives (`save_coordinates`; None:
+            gait2354).
         progress: a progress bar per trial on stderr; log: where the report lines go.
         signals: an entered `diffbody.runs._streaming.Interrupts`, or None for one of its own.
             A signal stops the run between two trials' writes with `Interrupted`: the
@@ -287,6 +291,7 @@ def fit_trials(
     fields = header_fields(
         body, static, markerset, tasks, keep_zeros=keep_zeros, axes=axes, prior=prior, time=time
     )
+    fields.insert(-1, ("opensim-model", str(opensim_model) if opensim_model else "gait2354"))
     shas = {}
     for p in paths:
         try:
@@ -351,7 +356,9 @@ def fit_trials(
             continue
         cells[2:] = trial_cells(fit)
         with signals.held():  # the trial's files, then its row: a row has its files
-            write_trial_files(out_dir, path, fit, trial, static_fit, scaled, outputs, axes)
+            write_trial_files(
+                out_dir, path, fit, trial, static_fit, scaled, outputs, axes, opensim_model
+            )
             append_lines(str(summary), _row(cells))
         fitted.append(path.name)
         if cells[4] == "failed":

@@ -264,7 +264,7 @@ LEG_ANGLES = tuple(
         "hip_flexion",
         "hip_adduction",
         "hip_rotation",
-        "knee_angle",
+        "knee_flexion",
         "ankle_angle",
     )
     for s in "rl"

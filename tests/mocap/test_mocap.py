@@ -21,7 +21,6 @@ from hypothesis import strategies as st
 
 import diffbody as db
 from diffbody._descriptors import descriptors, unwrap_directions
-from diffbody._joint_angles import joint_angles, opensim_sign
 from diffbody._rotations import exp_rotvec
 from diffbody.anthropometry._scale_to import LENGTHS, linear_model_jit
 from diffbody.anthropometry._scaling import N_GROUPS, SCALE_GROUPS, per_segment
@@ -29,7 +28,7 @@ from diffbody.clouds._cloud_fit import FitStatus
 from diffbody.files._data_files import data_file
 from diffbody.files._marker_trial import MarkerTrial
 from diffbody.files._markerset_file import load_markerset
-from diffbody.files._motion_files import read_mot, write_mot
+from diffbody.files._motion_files import read_mot
 from diffbody.ik._points import walk_points
 from diffbody.ik._problem import make_problem
 from diffbody.mocap._marker_layout import mocap_layout, rigid_fit, rotation_vector
@@ -39,6 +38,7 @@ from diffbody.mocap._mocap_solver import MIN_MARKERS, robust_rows
 from diffbody.mocap._motion_fit import FRAME_STEPS, fit_motion
 from diffbody.mocap._motion_limits import MOTION_RANGES, motion_limits
 from diffbody.mocap._static_fit import PRIOR_MEASUREMENTS, population_prior, scale_and_register
+from diffbody.mocap._trial_outputs import save_angles, save_coordinates, scaled_body
 
 N_FRAMES = 4
 NOISE = 0.005  # m, per coordinate
@@ -402,27 +402,88 @@ def test_zeros_are_gaps(tmp_path):
     assert static.dead() == {}
 
 
-def test_joint_angles_match_opensim_on_the_shipped_walk(shipped, tmp_path):
-    """ISB angles of the walk against OpenSim's IK answer over its 73 frames (0.4-1.6 s),
-    after matching signs (`opensim_sign`): hip flexion, knee flexion and ankle dorsiflexion,
-    both sides, RMS difference <= 5 degrees each (figures and mean offsets: README). The
-    angles also go through a .mot file and back unchanged."""
+def test_the_mot_as_written_matches_opensim_on_the_shipped_walk(shipped, tmp_path):
+    """The .mot `diffbody mocap --mot` writes (gait2354's coordinates, its frames placed
+    through its Scale marker set) against OpenSim's IK answer over its 73 frames (0.4-1.6 s),
+    as written, no sign applied: hip flexion, knee angle and ankle angle, both sides, RMS
+    difference <= 5 degrees each (figures: README). The ISB angles' file carries ISB's names:
+    no column of it is an OpenSim coordinate with another sign."""
     fit, motion, _ = shipped
-    with jax.enable_x64(False):
-        angles = jax.jit(jax.vmap(lambda pose: joint_angles(fit.body, pose)))(motion.poses)
-    ours = {name: np.asarray(v, float) for name, v in angles.items()}
+    scaled = scaled_body(fit, fit.body)
+    path = save_coordinates(tmp_path / "walk.mot", motion, fit, scaled, "walk")
+    times, ours = read_mot(path)
     os_times, opensim = read_mot(data_file("mocap/subject01_walk1_ik_opensim.mot"))
-    frames = np.array([int(np.argmin(np.abs(motion.times - t))) for t in os_times])
-    assert len(frames) == 73 and np.abs(motion.times[frames] - os_times).max() < 1e-3
-    path = write_mot(tmp_path / "angles.mot", motion.times, ours, name="joint_angles")
-    back_times, back = read_mot(path)
-    assert np.array_equal(back_times, motion.times)
-    assert all(np.array_equal(back[k], ours[k]) for k in ours)
+    frames = np.array([int(np.argmin(np.abs(times - t))) for t in os_times])
+    assert len(frames) == 73 and np.abs(times[frames] - os_times).max() < 1e-3
     figures = {}
     for name in [f"{n}_{s}" for n in ("hip_flexion", "knee_angle", "ankle_angle") for s in "rl"]:
-        difference = opensim_sign(name) * ours[name][frames] - opensim[name]
+        difference = ours[name][frames] - opensim[name]
         figures[name] = (float(np.sqrt(np.mean(difference**2))), float(np.mean(difference)))
     assert all(rms <= 5.0 for rms, _ in figures.values()), figures
+    isb = read_mot(save_angles(tmp_path / "walk.angles.mot", motion, scaled, "walk"))[1]
+    assert "knee_flexion_r" in isb and not set(isb) & {"knee_angle_r", "knee_angle_l"}
+    assert np.mean(isb["knee_flexion_r"]) > 0 > np.mean(ours["knee_angle_r"])
+
+
+def test_opensim_places_its_markers_from_our_mot_as_from_its_own(shipped, tmp_path):
+    """Our .mot for OpenSim's scaled model of the subject (`--opensim-model`), loaded onto
+    that model by OpenSim, which places its markers frame by frame: their RMS error against
+    the measured markers (OpenSim's own classes, the IK set-up's markers) within 1 cm of
+    what OpenSim's own IK .mot gives on the same model, and every coordinate inside the
+    model's range."""
+    osim = pytest.importorskip("opensim")
+    fit, motion, _ = shipped
+    model_path = data_file("mocap/subject01_simbody.osim")
+    scaled = scaled_body(fit, fit.body)
+    ours = save_coordinates(tmp_path / "walk.mot", motion, fit, scaled, "walk", model_path)
+    weights = db.read_ik_tasks(data_file("mocap/subject01_Setup_IK.xml"))
+    measured = osim.TimeSeriesTableVec3(str(data_file("mocap/subject01_walk1.trc")))
+    ours_rms, outside = _opensim_marker_rms(osim, model_path, ours, measured, weights)
+    theirs_rms, _ = _opensim_marker_rms(
+        osim, model_path, data_file("mocap/subject01_walk1_ik_opensim.mot"), measured, weights
+    )
+    assert len(ours_rms) == len(theirs_rms) == 73 and not outside, outside
+    assert np.mean(ours_rms) <= np.mean(theirs_rms) + 0.01, (ours_rms.mean(), theirs_rms.mean())
+
+
+def _opensim_marker_rms(osim, model_path, mot, measured, weights):
+    """Per frame of the .mot `mot` within the measured trial's time range: the RMS distance
+    (m) between the model's markers, placed by OpenSim from the file's coordinates, and the
+    measured ones (the markers weighted in `weights`); and the coordinates outside the
+    model's ranges."""
+    osim.Logger.setLevelString("error")
+    model = osim.Model(str(model_path))
+    state = model.initSystem()
+    table = osim.TimeSeriesTable(str(mot))
+    labels = list(table.getColumnLabels())
+    units = 1e-3 if measured.getTableMetaDataString("Units") == "mm" else 1.0
+    marker_times = np.array(measured.getIndependentColumn())
+    marker_labels = list(measured.getColumnLabels())
+    markers = model.getMarkerSet()
+    names = [n for n, w in weights.items() if w > 0 and n in marker_labels and markers.contains(n)]
+    coordinates = model.getCoordinateSet()
+    rms, outside = [], []
+    for i, t in enumerate(table.getIndependentColumn()):
+        if t < 0.4 - 1e-6 or t > 1.6 + 1e-6:
+            continue
+        row = table.getRowAtIndex(i)
+        for j, label in enumerate(labels):
+            if coordinates.contains(label):
+                c = coordinates.get(label)
+                value = np.radians(row[j]) if c.getMotionType() == 1 else row[j]
+                if not c.getRangeMin() - 1e-9 <= value <= c.getRangeMax() + 1e-9:
+                    outside.append((t, label, value))
+                c.setValue(state, value, False)
+        model.realizePosition(state)
+        at = measured.getRowAtIndex(int(np.argmin(np.abs(marker_times - t))))
+        squared = []
+        for n in names:
+            q = at[marker_labels.index(n)].to_numpy() * units
+            if np.all(np.isfinite(q)):
+                p = markers.get(n).getLocationInGround(state).to_numpy()
+                squared.append(np.sum((p - q) ** 2))
+        rms.append(np.sqrt(np.mean(squared)))
+    return np.array(rms), outside
 
 
 def test_float64_motion_fit_converges_on_real_data(male50):
