@@ -40,8 +40,10 @@ def trials(tmp_path_factory):
 
 def test_mocap_command(trials, tmp_path, capsys):
     out, png = tmp_path / "fit.npz", tmp_path / "fit.png"
-    mot, trc = tmp_path / "angles.mot", tmp_path / "model.trc"
+    mot, trc = tmp_path / "coordinates.mot", tmp_path / "model.trc"
+    isb = tmp_path / "angles.mot"
     argv = ["mocap", str(trials[0]), str(trials[1]), "--no-prior", "--mot", str(mot)]
+    argv += ["--angles", str(isb)]
     curves = tmp_path / "curves.png"
     argv += ["--curves", str(curves)]
     assert main(argv + ["--out", str(out), "--png", str(png), "--trc", str(trc)]) == 0
@@ -50,9 +52,16 @@ def test_mocap_command(trials, tmp_path, capsys):
     inlier_cm = float(text.split("marker RMS: ")[1].split(" cm over the inliers")[0])
     all_cm = float(text.split("cm over the inliers, ")[1].split(" cm over all markers")[0])
     assert 0.0 < inlier_cm <= all_cm < 3.0  # a real fit, not a failed one
-    times, angles = read_mot(mot)
+    times, coordinates = read_mot(mot)
+    assert len(times) == 4 and list(coordinates) == list(db.coordinate_names())
+    assert all(np.all(np.isfinite(v)) for v in coordinates.values())
+    assert "OpenSim's coordinates for gait2354" in text
+    times, angles = read_mot(isb)
     assert len(times) == 4 and set(angles) == set(angle_names())
-    assert all(np.all(np.isfinite(v)) for v in angles.values())
+    # One file per convention: no ISB column carries an OpenSim coordinate's name with
+    # another sign (the knee's is knee_flexion, OpenSim's knee_angle its negative).
+    assert not set(angles) & {"knee_angle_r", "knee_angle_l"}
+    np.testing.assert_allclose(coordinates["knee_angle_r"], -angles["knee_flexion_r"], atol=1e-4)
     model = read_trc(trc)
     assert model.n_frames == 4 and model.n_markers == 49
     scaled = db.load_body(tmp_path / "fit.body.json")

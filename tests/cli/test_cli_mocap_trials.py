@@ -104,8 +104,9 @@ def test_a_folder_of_trials(recorded, uninterrupted, capsys):
     assert record.n_frames == 4 and record.kind == "sequence"
     rms = float(rows[1]["marker_rms_m"])
     np.testing.assert_allclose(np.sqrt(np.nanmean(record.residuals["errors"] ** 2)), rms, 1e-6)
-    times, angles = db.read_mot(out / "a.mot")
-    assert len(times) == 4 and all(np.all(np.isfinite(v)) for v in angles.values())
+    times, coordinates = db.read_mot(out / "a.mot")
+    assert len(times) == 4 and list(coordinates) == list(db.coordinate_names())
+    assert all(np.all(np.isfinite(v)) for v in coordinates.values())
 
 
 def start(static, trials, out, *extra):
@@ -191,6 +192,7 @@ def test_a_killed_run_leaves_whole_files_and_resumes(recorded, uninterrupted, tm
         ("prior", "the prior (--no-prior) changed from off to on"),
         (["--keep-zeros"], "--keep-zeros changed from off to on"),
         (["--time", "2", "4"], "--time changed from (all) to 2.0 4.0"),
+        (["--opensim-model", "model.osim"], "--opensim-model changed from gait2354 to model.osim"),
     ],
 )
 def test_resume_refuses_a_different_run(recorded, uninterrupted, tmp_path, capsys, change, message):
