@@ -104,6 +104,8 @@ _FAMILIES = {
         "draw_motion",
         "fit_motion",
         "fit_trials",
+        "grade_motion",
+        "grade_static",
         "match_markers",
         "model_frames",
         "motion_limits",
@@ -194,13 +196,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         sample_pose,
         synthetic_cloud,
     )
-    from .contact import (
-        Contact,
-        ContactReport,
-        Environment,
-        contact_report,
-        sphere_pairs,
-    )
+    from .contact import Contact, ContactReport, Environment, contact_report, sphere_pairs
     from .export import (
         SingularJointsWarning,
         export_mjcf,
@@ -284,6 +280,8 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         draw_motion,
         fit_motion,
         fit_trials,
+        grade_motion,
+        grade_static,
         match_markers,
         model_frames,
         motion_limits,
@@ -384,6 +382,8 @@ __all__ = [
     "scale_and_register",
     "fit_motion",
     "fit_trials",
+    "grade_static",
+    "grade_motion",
     "TrialsSummary",
     "draw_motion",
     "descriptors",

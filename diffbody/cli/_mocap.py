@@ -245,6 +245,7 @@ def _mocap_one(args) -> int:
     from ..clouds._cloud_fit import FitStatus
     from ..files._marker_files import read_markers
     from ..files._opensim_files import read_ik_tasks
+    from ..mocap._grades import grade_motion, grade_static
     from ..mocap._markerset import match_markers
     from ..mocap._motion_fit import fit_motion
     from ..mocap._static_fit import scale_and_register
@@ -343,6 +344,9 @@ def _mocap_one(args) -> int:
         f"cm off); per frame mean {100 * np.nanmean(rms):.2f} cm, max "
         f"{100 * rms[worst_frame]:.2f} cm (t = {float(out.times[worst_frame]):.3f} s)"
     )
+    print("OpenSim's best practices:")
+    for grade in grade_static(static_fit) + grade_motion(out):
+        print(f"  {grade.line()}")
     flagged = out.flagged()
     if flagged:
         print(f"faulty markers ({len(flagged)}):")

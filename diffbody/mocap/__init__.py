@@ -2,6 +2,9 @@
 a trial fitted to its markers, folders of trials, joint-angle plots. The marker files and marker
 sets are read by `diffbody.files`."""
 
+from ._grades import Grade as Grade
+from ._grades import grade_motion as grade_motion
+from ._grades import grade_static as grade_static
 from ._markerset import MarkerWarning as MarkerWarning
 from ._markerset import match_markers as match_markers
 from ._markerset import scale_offsets as scale_offsets

@@ -49,6 +49,9 @@ def test_mocap_command(trials, tmp_path, capsys):
     assert main(argv + ["--out", str(out), "--png", str(png), "--trc", str(trc)]) == 0
     text = capsys.readouterr().out
     assert "4 frames" in text and "faulty markers: none" in text and "worst other marker:" in text
+    # The grades against OpenSim's best practices, the static fit's and the motion's.
+    assert "OpenSim's best practices:" in text and "bony landmarks, RMS" in text
+    assert "frames with RMS < 2 cm and every marker < 4 cm" in text
     inlier_cm = float(text.split("marker RMS: ")[1].split(" cm over the inliers")[0])
     all_cm = float(text.split("cm over the inliers, ")[1].split(" cm over all markers")[0])
     assert 0.0 < inlier_cm <= all_cm < 3.0  # a real fit, not a failed one
