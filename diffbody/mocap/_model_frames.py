@@ -10,7 +10,8 @@ from .._opensim_coordinates import ModelFrames
 from ..files._markerset_file import MarkerSet
 from ._markerset import world_markers
 
-# The model's bodies whose frames `ModelFrames` holds, and the segment of ours each lies on.
+# The model's bodies whose frames `ModelFrames` holds (OpenSim's names); ours are the pelvis and the
+# thorax, whose anatomical frames are the ISB axes in the standard position.
 MODEL_BODIES = ("pelvis", "torso")
 
 
