@@ -606,6 +606,26 @@ def benchmark_prose() -> list[str]:
         f"later runs read the compiled programs back ({number(cli_cached['measured']):.1f} s,",
         f"a standing whole-body reach's first call takes {number(first_cold['measured']):.1f} s "
         f"with an empty cache and {number(first_cached['measured']):.1f} s in a later session",
+        *gpu_prose(),
+    ]
+
+
+def gpu_prose() -> list[str]:
+    """The sentences of docs/benchmarks.md that quote the GPU run (benchmarks/results/gpu)."""
+    poses = {n: row("gpu/fk", "throughput", n, "full")[4] for n in ("100,000", "1,000,000")}
+    mujoco = goal("gpu/fk", "forward full body")
+    arm, arm_highest = (goal(f"gpu/{n}", "left arm solves/s (batch") for n in ("ik", "ik_highest"))
+    peer = row("gpu/ik", "peers", "pytorch_kinematics 0.10.0")
+    body = goal("gpu/ik", "solve_reach_batch whole body, 4,096 targets, solves/s")
+    return [
+        f"the full body at {poses['100,000']} poses/s in a batch of 100,000 and "
+        f"{poses['1,000,000']} in a batch of 1,000,000, {mujoco['measured']} MuJoCo's",
+        f"{arm['measured']} solves/s at {number(arm['success']):.1f} % within 1 mm and the "
+        f"limits, where pytorch_kinematics on the same GPU solves {peer[5]}/s at "
+        f"{number(peer[4]):.1f} % within 1 mm",
+        f"`--matmul-precision highest`, {arm_highest['measured']} solves/s at "
+        f"{number(arm_highest['success']):.1f} %",
+        f"about the same rate per row ({body['measured']} solves/s)",
     ]
 
 
