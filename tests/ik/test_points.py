@@ -70,7 +70,8 @@ def cases(male50):
                 x = x + 0.3 * rng.standard_normal(x.shape)
             elif kind == "limits":
                 # Every bounded variable at a bound (sin map flat), the root moved.
-                x = jnp.where(jnp.arange(x.shape[0]) % 2 == 0, jnp.pi / 2, -jnp.pi / 2)
+                # Strongly typed, as the other kinds' x: a weak type would compile again.
+                x = jnp.asarray(np.where(np.arange(x.shape[0]) % 2 == 0, np.pi / 2, -np.pi / 2))
                 if lay.root:
                     x = x.at[-6:].set(jnp.asarray([0.1, -0.2, 0.05, 0.3, -0.2, 1.0]))
             args = (body.lengths, offsets, heights, x)
