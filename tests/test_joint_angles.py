@@ -2,6 +2,7 @@
 one-axis motions, mirror symmetry, the Bendspine thorax, and derivatives (forward = reverse
 = finite differences; finite at the standard position, the shoulder's gimbal lock)."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -152,19 +153,24 @@ def test_batches_by_vmap(male50, angles_of):
 def _jacobians(body: db.Body, pose: db.Pose):
     """d(angles)/d(pose angles) by forward mode, reverse mode and central differences."""
     names = angle_names()
+    x = jnp.asarray(pose.angles).ravel()
+    fwd, rev, fd = _derivatives(body, pose.position, x)
+    return names, np.asarray(fwd), np.asarray(rev), np.asarray(fd)
+
+
+@eqx.filter_jit
+def _derivatives(body: db.Body, position, x):
+    """`_jacobians`' three, one program for every pose (the pose is an argument)."""
+    names = angle_names()
 
     def f(x):
-        p = db.Pose(position=pose.position, angles=x.reshape(pose.angles.shape))
+        p = db.Pose(position=position, angles=x.reshape(-1, 3))
         out = joint_angles(body, p)
         return jnp.stack([out[n] for n in names])
 
-    x = jnp.asarray(pose.angles).ravel()
-    fwd = jax.jit(jax.jacfwd(f))(x)
-    rev = jax.jit(jax.jacrev(f))(x)
     h = 1e-6
-    steps = h * jnp.eye(x.size)
-    fd = jax.jit(jax.vmap(lambda e: (f(x + e) - f(x - e)) / (2 * h)))(steps).T
-    return names, np.asarray(fwd), np.asarray(rev), np.asarray(fd)
+    fd = jax.vmap(lambda e: (f(x + e) - f(x - e)) / (2 * h))(h * jnp.eye(x.size)).T
+    return jax.jacfwd(f)(x), jax.jacrev(f)(x), fd
 
 
 def test_derivatives_agree(male50):

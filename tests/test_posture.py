@@ -67,7 +67,8 @@ def test_pose_from_positions_for_a_rerooted_body(male50):
 
 def test_posture_gradients_finite_at_the_standard_position(male50):
     p = db.forward(male50, male50.rest_pose()).joint_positions
-    g = jax.grad(lambda x: jnp.sum(db.pose_from_joint_positions(male50, x).angles ** 2))(p)
+    # One program (op by op, the walk's scan compiles a program per operation).
+    g = jax.jit(jax.grad(lambda x: jnp.sum(db.pose_from_joint_positions(male50, x).angles ** 2)))(p)
     assert np.all(np.isfinite(g))
 
 
@@ -100,9 +101,11 @@ def test_fixed_reference_flips_but_smooth_reference_does_not():
 
 def test_smooth_frame_has_finite_gradients_along_the_parent_axis():
     rest_bone, rest_ref = jnp.array([0.0, 0.0, -1.0]), jnp.array([1.0, 0.0, 0.0])
+    f = lambda b: db.local_frame(b, db.smooth_reference(b, rest_bone, rest_ref))  # noqa: E731
+    # Compiled once for the three bones (op by op, every operation is a program of its own).
+    jacobians = (jax.jit(jax.jacfwd(f)), jax.jit(jax.jacrev(f)))
     for bone in ([1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]):
-        f = lambda b: db.local_frame(b, db.smooth_reference(b, rest_bone, rest_ref))  # noqa: E731
-        for jac in (jax.jacfwd(f), jax.jacrev(f)):
+        for jac in jacobians:
             assert np.all(np.isfinite(jac(jnp.asarray(bone))))
     # ...and the seed's fixed reference stays finite (though it jumps) exactly on the axis.
     g = jax.jacfwd(lambda b: db.local_frame(b, jnp.array([1.0, 0.0, 0.0])))(

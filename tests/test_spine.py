@@ -352,8 +352,8 @@ def test_a_pose_can_carry_a_spine_target(male50):
     np.testing.assert_allclose(fd, jac, atol=1e-6)
     # Batches of targets are a vmap.
     targets = jnp.stack([target, spine.rest.sum(0)])
-    batch = jax.vmap(
-        lambda t: db.forward(male50, db.Pose(rest.position, rest.angles, spine_target=t))
+    batch = jax.jit(
+        jax.vmap(lambda t: db.forward(male50, db.Pose(rest.position, rest.angles, spine_target=t)))
     )
     np.testing.assert_allclose(
         batch(targets).sphere_centers[1], fk(male50, rest).sphere_centers, atol=1e-12

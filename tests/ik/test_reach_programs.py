@@ -4,6 +4,7 @@ section 6, "Programs")."""
 import contextlib
 import logging
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -63,8 +64,10 @@ def test_a_step_cap_given_as_data_stops_where_a_static_one_does(male50, cap):
     tols = (jnp.asarray(1e-3), jnp.asarray(np.deg2rad(1.0)))
     common = (male50, layout, rest, phase_targets[0], jnp.zeros(layout.n_free))
     start = (jnp.asarray(0), jnp.asarray(True))
-    x_static, steps_static, done_static = solve_free(*common, *start, cap, *tols, True)
-    x_data, steps_data, done_data = solve_free(
+    # Compiled (op by op, each of its hundreds of operations is a program of its own).
+    solve = eqx.filter_jit(solve_free)
+    x_static, steps_static, done_static = solve(*common, *start, cap, *tols, True)
+    x_data, steps_data, done_data = solve(
         *common, *start, ROUND_STEPS, *tols, True, cap=jnp.asarray(cap)
     )
     assert int(steps_static) == cap and not bool(done_static)

@@ -6,6 +6,7 @@ import importlib.util
 import itertools
 import json
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -279,14 +280,16 @@ def pig_trial(male50, pig, tmp_path_factory):
     rng = np.random.default_rng(7)
     lay = mocap_layout(male50, pig)
     rest = male50.rest_pose()
-    problem = make_problem(male50, lay.pose, rest)
+    # Compiled (op by op, the set-up's operations are hundreds of programs).
+    problem = eqx.filter_jit(make_problem)(male50, lay.pose, rest)
+    pose_of = eqx.filter_jit(lambda problem, x: problem.pose(x, rest))
     n = lay.pose.n_free
     x = np.asarray(problem.x0) + 0.15 * rng.standard_normal(n)
     x[-6:] = [0.4, 1.2, 0.0, 0.0, 0.0, 0.3]  # placed in the lab and turned
     step = 0.04 * rng.standard_normal(n)
     step[-6:] = [0.05, 0.0, 0.0, 0.0, 0.0, 0.02]  # walking forward, turning a little
     fk = jax.jit(lambda pose: (world_markers(male50, pose, pig), db.forward(male50, pose)))
-    poses = [problem.pose(jnp.asarray(x + k * step), rest) for k in range(N_FRAMES)]
+    poses = [pose_of(problem, jnp.asarray(x + k * step)) for k in range(N_FRAMES)]
     out = [fk(p) for p in poses]
     world = np.stack([np.asarray(m) for m, _ in out])
     R_world_lab = c3d_screen_axes(*SCREEN)

@@ -68,7 +68,9 @@ def subject(male50, gait):
     markers = scale_offsets(gait, male50, a, ones)
     lay = mocap_layout(person, markers)
     rest = person.rest_pose()
-    problem = make_problem(person, lay.pose, rest)
+    # Compiled (op by op, the set-up's operations are hundreds of programs).
+    problem = eqx.filter_jit(make_problem)(person, lay.pose, rest)
+    pose_of = eqx.filter_jit(lambda problem, x: problem.pose(x, rest))
     n = lay.pose.n_free
     x_static = np.asarray(problem.x0) + 0.15 * rng.standard_normal(n)
     x_static[-6:] = [0.3, -0.1, 0.0, 0.0, 0.0, 0.4]  # placed and turned
@@ -76,8 +78,8 @@ def subject(male50, gait):
     step[-6:] = [0.04, 0.0, 0.0, 0.0, 0.0, 0.02]  # walking forward, turning a little
     xs = [x_static + t * step for t in range(1, N_FRAMES + 1)]
     fk = jax.jit(lambda pose: (world_markers(person, pose, markers), db.forward(person, pose)))
-    static_pose = problem.pose(jnp.asarray(x_static), rest)
-    poses = [problem.pose(jnp.asarray(x), rest) for x in xs]
+    static_pose = pose_of(problem, jnp.asarray(x_static))
+    poses = [pose_of(problem, jnp.asarray(x)) for x in xs]
     static_markers = np.asarray(fk(static_pose)[0])
     out = [fk(p) for p in poses]
     return {
@@ -589,7 +591,8 @@ def test_kernel_equals_autodiff_through_the_walk(kernel):
     def plain(lengths, offsets, x):
         return walk_points(problem, kernel["lay"].slots, lengths, offsets, offsets[:, 2], x)[0]
 
-    _, tangent = jax.jvp(plain, tuple(args), v)
+    # One program (op by op, the walk's hundreds of operations are a program each).
+    _, tangent = jax.jit(lambda a, d: jax.jvp(plain, a, d))(tuple(args), v)
     J_fwd = kernel["jacfwd"](problem, *args)
     directional = sum(np.tensordot(J, d, axes=d.ndim) for J, d in zip(J_fwd, v))
     np.testing.assert_allclose(directional, tangent, atol=1e-12)
