@@ -84,6 +84,22 @@ def add_mocap_command(sub) -> None:
         "body's proportions",
     )
     p.add_argument(
+        "--measure",
+        action="append",
+        default=[],
+        metavar="NAME=METRES",
+        help="a tape or caliper reading scaling takes beside the markers, e.g. --measure "
+        "stature=1.78 (repeat it; stature, span, segment lengths and breadths as ANSUR II "
+        "measures them); each read to --measure-sd",
+    )
+    p.add_argument(
+        "--measure-sd",
+        type=finite_float,
+        default=None,
+        metavar="METRES",
+        help="the readings' standard deviation (default 0.005 m)",
+    )
+    p.add_argument(
         "--time",
         nargs=2,
         type=finite_float,
@@ -215,6 +231,7 @@ def _mocap_trials(args) -> int:
                 keep_zeros=args.keep_zeros,
                 axes=axes,
                 prior=not args.no_prior,
+                readings=readings(args),
                 time=tuple(args.time) if args.time is not None else None,
                 outputs=outputs,
                 opensim_model=args.opensim_model,
@@ -290,8 +307,13 @@ def _mocap_one(args) -> int:
     markerset = noted(print, load_any_markerset, args.markerset, body)
 
     t0 = time.perf_counter()
-    static_fit = noted(print, scale_and_register, body, static, markerset, prior=not args.no_prior)
+    measured = readings(args)
+    static_fit = noted(
+        print, scale_and_register, body, static, markerset, prior=not args.no_prior, **measured
+    )
     jax.block_until_ready(static_fit)
+    if measured:
+        print(read_against_fitted(static_fit.body, measured["measured"]))
     scale_s = time.perf_counter() - t0
     registered, trial = noted(print, match_markers, static_fit.markerset, motion)
     t0 = time.perf_counter()
@@ -382,3 +404,33 @@ def _mocap_one(args) -> int:
         save_curves(args.curves, out, scaled, title=os.path.basename(args.motion))
         print(f"wrote {args.curves} (joint angles and marker error over time)")
     return 1 if np.any(status == FitStatus.FAILED) else 0
+
+
+def readings(args) -> dict:
+    """`scale_and_register`'s readings from --measure NAME=METRES (repeated) and
+    --measure-sd, as keyword arguments (empty: none)."""
+    measured = {}
+    for item in args.measure:
+        name, _, value = item.partition("=")
+        try:
+            measured[name.strip()] = float(value)
+        except ValueError:
+            raise ValueError(
+                f"--measure {item}: give NAME=METRES, e.g. --measure stature=1.78"
+            ) from None
+    if not measured:
+        return {}
+    sd = {} if args.measure_sd is None else {"measured_sd": args.measure_sd}
+    return {"measured": measured, **sd}
+
+
+def read_against_fitted(body, measured: dict) -> str:
+    """A line per reading: read, fitted (on the scaled body), their difference (mm)."""
+    from ..anthropometry._measurements import measurements
+
+    fitted = measurements(body, tuple(measured))
+    rows = [
+        f"  {n}: read {v:.3f} m, fitted {fitted[n]:.3f} m ({1000 * (fitted[n] - v):+.1f} mm)"
+        for n, v in measured.items()
+    ]
+    return "\n".join(["readings against the scaled body:", *rows])

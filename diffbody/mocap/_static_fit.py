@@ -7,20 +7,25 @@ share one) and each marker's offset. Rows, each a standard score: each marker's 
 `MARKER_SD`; each offset's move from where the set puts it on the scaled body / its
 tolerance; the ANSUR II prior of one sex on the measurements the factors decide
 (`PRIOR_MEASUREMENTS`), whitened, and each factor's spread `PROPORTION_SD` (without the
-prior, a weak pull on the factors); a weak `PULL` of the posture toward the start. Start:
-the standard position moved rigidly onto the markers riding rigidly on the whole body.
+prior, a weak pull on the factors); tape or caliper readings of the body's length
+measurements, when given, each (modelled - read) / its standard deviation; a weak `PULL` of
+the posture toward the start. Start: the standard position moved rigidly onto the markers
+riding rigidly on the whole body.
 """
 
 import dataclasses
+import math
+from collections.abc import Mapping
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._body import Body, Pose, without_names
+from .._body import Body, Pose, unknown_name_error, without_names
 from .._programs import compiled
 from .._solver import FitStatus, solve
+from ..anthropometry._measurements import MEASUREMENTS
 from ..anthropometry._prior import PopulationPrior
 from ..anthropometry._scale_to import LENGTHS, linear_model_jit
 from ..anthropometry._scaling import N_GROUPS, log_scaled, per_segment
@@ -66,6 +71,10 @@ PRIOR_MEASUREMENTS = (
     "handlength",
     "footlength",
 )
+# A tape or caliper reading's standard deviation (m) when none is given: anthropometrists'
+# technical error of measurement for stature, segment lengths and breadths is 2-5 mm (ISO
+# 20685-1), so 5 mm.
+TAPE_SD = 0.005
 STATIC_STEPS = 100
 # The motion fit's robust scale (`StaticFit.marker_scale`): this many times the static RMS
 # (how far a registered marker sits from its measurement with nothing moving: skin, chest
@@ -118,6 +127,77 @@ class _Prior(eqx.Module):
         return jnp.concatenate([self.whiten @ (log_m - self.mean), log_s / PROPORTION_SD])
 
 
+class _Readings(eqx.Module):
+    """Tape or caliper readings of the body's length measurements (`LENGTHS`, m): the
+    modelled measurements A s (as `_Prior`'s) against the readings, each row over its
+    standard deviation. A measurement not read weighs 0, so every set of readings shares one
+    program."""
+
+    A: Float[Array, "L two_n_group"]  # m per unit factor: axial columns, then radial
+    value: Float[Array, " L"]  # m, 0 where not read
+    inv_sd: Float[Array, " L"]  # 1 / m, 0 where not read
+
+    def rows(self, log_axial: Array, log_radial: Array) -> Array:
+        s = jnp.exp(jnp.concatenate([log_axial, log_radial]))
+        return self.inv_sd * (self.A @ s - self.value)
+
+
+def tape_readings(measured, template: Body, sd=TAPE_SD) -> _Readings | None:
+    """The static fit's readings (`_Readings`; None when `measured` is empty or None).
+    `measured`: measurement name (`LENGTHS`: stature, span, the segment lengths, breadths and
+    depths of `diffbody.MEASUREMENTS`) -> metres, as ANSUR II measures them; `sd`: each
+    reading's standard deviation (m), one for all or a dict by name."""
+    if not measured:
+        return None
+    if not isinstance(measured, Mapping):
+        raise TypeError(
+            f"scale_and_register: measured must map measurement names to metres, "
+            f'e.g. {{"stature": 1.78}}, got {measured!r}'
+        )
+    value, inv_sd = np.zeros(len(LENGTHS)), np.zeros(len(LENGTHS))
+    for name, v in measured.items():
+        if name not in LENGTHS:
+            if name in MEASUREMENTS:
+                raise ValueError(
+                    f"scale_and_register: measured {name!r} is not a length; the static fit "
+                    f"takes lengths in metres: {', '.join(LENGTHS)}"
+                )
+            raise unknown_name_error("measurement", name, LENGTHS)
+        v = _positive(f"measured {name!r}", v, "metres")
+        if v > 3.0:
+            raise ValueError(
+                f"scale_and_register: measured {name!r} is {v:g}; give metres (a stature of "
+                "1.78, not 1780 mm or 178 cm)"
+            )
+        given_sd = sd.get(name, TAPE_SD) if isinstance(sd, Mapping) else sd
+        k = LENGTHS.index(name)
+        value[k], inv_sd[k] = v, 1.0 / _positive(f"measured_sd of {name!r}", given_sd, "metres")
+    dtype = template.lengths.dtype
+    arrays = (_measurement_model(template), value, inv_sd)
+    return _Readings(*(jnp.asarray(a, dtype) for a in arrays))
+
+
+def _positive(what: str, v, unit: str) -> float:
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"scale_and_register: {what} must be a number of {unit}, got {v!r}"
+        ) from None
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(
+            f"scale_and_register: {what} must be a finite number of {unit} > 0, got {v!r}"
+        )
+    return v
+
+
+def _measurement_model(template: Body) -> np.ndarray:
+    """(L, 2 n_group) A: the template's `LENGTHS` are A s for group factors s (axial, then
+    radial) within the piece of s = 1 (`anthropometry._scale_to`)."""
+    ones = jnp.ones(2 * N_GROUPS, template.lengths.dtype)
+    return np.asarray(linear_model_jit(without_names(template), ones))
+
+
 def population_prior(prior, template: Body, sex: str | None, fit=FIT_CHOICES) -> _Prior | None:
     """The prior of the static fit (None: none) on `PRIOR_MEASUREMENTS`, and
     `RADIAL_MEASUREMENTS` when the radii are fitted. `prior`: True (every ANSUR II
@@ -137,7 +217,7 @@ def population_prior(prior, template: Body, sex: str | None, fit=FIT_CHOICES) ->
     k = prior.index(names)
     whiten = np.linalg.inv(np.linalg.cholesky(prior.cov[np.ix_(k, k)]))
     dtype = template.lengths.dtype
-    A = np.asarray(linear_model_jit(without_names(template), jnp.ones(2 * N_GROUPS, dtype)))
+    A = _measurement_model(template)
     arrays = (A[[LENGTHS.index(n) for n in names]], prior.mean[k], whiten)
     return _Prior(*(jnp.asarray(a, dtype) for a in arrays))
 
@@ -150,6 +230,7 @@ class _Static(eqx.Module):
     target: Float[Array, "n 3"]  # m, measured mean positions (0 where missing)
     sqrt_w: Float[Array, " n"]  # sqrt(weight) / MARKER_SD, 0 where missing
     prior: _Prior | None
+    readings: _Readings | None = None
 
 
 def _static_state(static: _Static, lay: MocapLayout, z: Array):
@@ -177,6 +258,8 @@ def _static_residuals(z: Array, args) -> Array:
         rows.append(static.prior.rows(*log_scales))
     else:
         rows.append(PULL * jnp.concatenate(log_scales))
+    if static.readings is not None:
+        rows.append(static.readings.rows(*log_scales))
     return jnp.concatenate(rows)
 
 
@@ -223,6 +306,9 @@ def scale_and_register(
     fit=("lengths", "offsets"),
     sex: str | None = None,
     limits: str = "motion",
+    # Not annotated: a reading of the wrong kind is told by `tape_readings`, by name.
+    measured=None,
+    measured_sd=TAPE_SD,
 ) -> StaticFit:
     """Scale a body and register its markers on a static trial (module docstring).
 
@@ -242,6 +328,13 @@ def scale_and_register(
             starts with it, else "male").
         limits: "motion" (default): the anatomical maximum ranges (`motion_limits`), which
             the returned body carries; "body": the body's own.
+        measured: tape or caliper readings beside the markers, measurement name -> metres
+            (stature, span, segment lengths, breadths: `anthropometry._scale_to.LENGTHS`,
+            measured as ANSUR II does, `diffbody.MEASUREMENTS`), e.g. {"stature": 1.78}.
+            Each is a row (modelled - read) / `measured_sd` beside the markers and the
+            prior; `diffbody.measurements(fit.body)` gives the fitted values.
+        measured_sd: each reading's standard deviation (m; one for all, or by name):
+            `TAPE_SD` (5 mm) by default.
 
     Returns:
         A `StaticFit`: the scaled body, the static pose, the registered marker set (offsets
@@ -250,9 +343,12 @@ def scale_and_register(
 
     Raises:
         ValueError: an unknown choice in `fit`; no marker shared with the set; fewer than
-            `MIN_MARKERS` markers present in the static trial.
+            `MIN_MARKERS` markers present in the static trial; a reading that is not a
+            length in metres, or its standard deviation not > 0.
+        KeyError: an unknown measurement name (the valid ones listed).
     """
     fit = _fit_names(fit)
+    readings = tape_readings(measured, body, measured_sd)
     if limits not in LIMITS:
         raise ValueError(f"scale_and_register: limits must be one of {LIMITS}, got {limits!r}")
     if limits == "motion":
@@ -275,6 +371,7 @@ def scale_and_register(
         target=masked_targets(target[0])[0],
         sqrt_w=sqrt_w[0],
         prior=population_prior(prior, body, sex, fit),
+        readings=readings,
     )
     out = _fit_static_jit(template, lay, rest, state)
     pose, log_axial, log_radial, offsets, errors, status, steps = out

@@ -59,6 +59,7 @@ _SETTINGS = {
     "keep-zeros": "--keep-zeros",
     "axes": "--axes",
     "prior": "the prior (--no-prior)",
+    "measured": "the readings (--measure, --measure-sd)",
     "time": "--time",
     "opensim-model": "--opensim-model",
     "float": "the float precision (JAX_ENABLE_X64)",
@@ -103,7 +104,7 @@ def trial_files(trials) -> list[Path]:
     return sorted(found, key=lambda p: (p.name, str(p)))
 
 
-def header_fields(body, static, markerset, tasks, *, keep_zeros, axes, prior, time):
+def header_fields(body, static, markerset, tasks, *, keep_zeros, axes, prior, time, readings=None):
     """The summary CSV's header, in the order written. `--resume` checks all but the file
     names (`static`, `tasks`: their hashes are checked) and `begun` (UTC)."""
     from datetime import datetime, timezone
@@ -124,14 +125,28 @@ def header_fields(body, static, markerset, tasks, *, keep_zeros, axes, prior, ti
         ("keep-zeros", "on" if keep_zeros else "off"),
         ("axes", axes or "(each file's own)"),
         ("prior", "on" if prior else "off"),
+        ("measured", _readings_field(readings or {})),
         ("time", f"{time[0]!r} {time[1]!r}" if time is not None else "(all)"),
         ("float", jnp.dtype(jnp.result_type(float)).name),  # JAX_ENABLE_X64 changes the fits
         ("begun", datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")),
     ]
 
 
+def _readings_field(readings: dict) -> str:
+    """The readings (`scale_and_register`'s measured, measured_sd) in the header."""
+    from ._static_fit import TAPE_SD
+
+    if not readings:
+        return "(none)"
+    sd = readings.get("measured_sd", TAPE_SD)
+    values = " ".join(f"{n}={float(v)!r}" for n, v in sorted(readings["measured"].items()))
+    return f"{values} sd={sd!r}"
+
+
 def _changes(old: dict[str, str], new: dict[str, str]) -> list[str]:
     """What differs between a summary's header (`old`) and this run's (`new`), in words."""
+    # A summary begun before readings were recorded was begun without any.
+    old = {"measured": "(none)", **old}
     changes = header_changes(old, new, {"static-sha256": "the static trial"}, _SETTINGS)
     body_changed = any(old.get(k) != new[k] for k in BODY_KEYS)
     # The set is resolved on the body: another body moves its offsets, and that is told.
@@ -226,6 +241,7 @@ def fit_trials(
     keep_zeros: bool = False,
     axes: str | None = None,
     prior: bool = True,
+    readings: dict | None = None,
     time: tuple[float, float] | None = None,
     outputs=(),
     opensim_model=None,
@@ -247,8 +263,9 @@ def fit_trials(
         tasks: an OpenSim IK task-set or set-up file (`read_ik_tasks`): the markers and
             weights of the motion fits.
         keep_zeros, axes: how the marker files are read (`read_markers`: `zero_is_gap` is
-            `not keep_zeros`); prior: `scale_and_register`'s; time: (t0, t1) s, the
-            frames of each trial fitted.
+            `not keep_zeros`); prior: `scale_and_register`'s; readings: its readings as
+            keyword arguments ({"measured": {...}, "measured_sd": ...}; None: none); time:
+            (t0, t1) s, the frames of each trial fitted.
         outputs: the optional files of each trial, names of `OUTPUTS` ("mot", "angles",
             "trc", "png", "curves").
         opensim_model: the OpenSim model each .mot drives (`save_coordinates`; None:
@@ -289,7 +306,15 @@ def fit_trials(
     if isinstance(markerset, (str, os.PathLike)):
         markerset = noted(log, load_any_markerset, str(markerset), body)
     fields = header_fields(
-        body, static, markerset, tasks, keep_zeros=keep_zeros, axes=axes, prior=prior, time=time
+        body,
+        static,
+        markerset,
+        tasks,
+        keep_zeros=keep_zeros,
+        axes=axes,
+        prior=prior,
+        time=time,
+        readings=readings,
     )
     fields.insert(-1, ("opensim-model", str(opensim_model) if opensim_model else "gait2354"))
     shas = {}
@@ -330,7 +355,9 @@ def fit_trials(
         t0 = clock.perf_counter()
         from ._static_fit import scale_and_register
 
-        static_fit = noted(log, scale_and_register, body, static_trial, markerset, prior=prior)
+        static_fit = noted(
+            log, scale_and_register, body, static_trial, markerset, prior=prior, **(readings or {})
+        )
         scaled = scaled_body(static_fit, body)
         with signals.held():
             save_scaled_body(scaled, body_files[0])

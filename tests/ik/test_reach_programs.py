@@ -1,7 +1,6 @@
 """What a reach compiles: settings that are data share one program (docs/design.md,
 section 6, "Programs")."""
 
-import contextlib
 import logging
 
 import equinox as eqx
@@ -9,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from compiles import counted_compiles
 
 import diffbody as db
 from diffbody import _programs
@@ -16,24 +16,6 @@ from diffbody.ik._attempt import ROUND_STEPS, solve_free
 from diffbody.ik._phases import phase_layouts
 from diffbody.ik._reach import constrained_targets
 from diffbody.ik._targets import Target, resolve_targets
-
-COMPILE = "/jax/core/compile/backend_compile_duration"
-
-
-@contextlib.contextmanager
-def counted_compiles():
-    """The XLA compiles inside the block, as a list that fills as they happen."""
-    seen: list[float] = []
-
-    def listen(event: str, secs: float, **_) -> None:
-        if event == COMPILE:
-            seen.append(secs)
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
-        yield seen
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
 
 
 def test_the_step_budget_is_data(male50):
