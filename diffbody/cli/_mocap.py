@@ -262,7 +262,7 @@ def _mocap_one(args) -> int:
     from ..clouds._cloud_fit import FitStatus
     from ..files._marker_files import read_markers
     from ..files._opensim_files import read_ik_tasks
-    from ..mocap._grades import grade_motion, grade_static
+    from ..mocap._grades import grade_motion, grade_static, readings_report
     from ..mocap._markerset import match_markers
     from ..mocap._motion_fit import fit_motion
     from ..mocap._static_fit import scale_and_register
@@ -313,7 +313,7 @@ def _mocap_one(args) -> int:
     )
     jax.block_until_ready(static_fit)
     if measured:
-        print(read_against_fitted(static_fit.body, measured["measured"]))
+        print(readings_report(static_fit.body, measured["measured"]))
     scale_s = time.perf_counter() - t0
     registered, trial = noted(print, match_markers, static_fit.markerset, motion)
     t0 = time.perf_counter()
@@ -422,15 +422,3 @@ def readings(args) -> dict:
         return {}
     sd = {} if args.measure_sd is None else {"measured_sd": args.measure_sd}
     return {"measured": measured, **sd}
-
-
-def read_against_fitted(body, measured: dict) -> str:
-    """A line per reading: read, fitted (on the scaled body), their difference (mm)."""
-    from ..anthropometry._measurements import measurements
-
-    fitted = measurements(body, tuple(measured))
-    rows = [
-        f"  {n}: read {v:.3f} m, fitted {fitted[n]:.3f} m ({1000 * (fitted[n] - v):+.1f} mm)"
-        for n, v in measured.items()
-    ]
-    return "\n".join(["readings against the scaled body:", *rows])

@@ -85,3 +85,16 @@ def grade_motion(motion) -> list[Grade]:
     )
     out.append(Grade(what, float(good.mean()), 1.0, bool(good.all()), tuple(breaks), "share"))
     return out
+
+
+def readings_report(body, measured: dict) -> str:
+    """Tape or caliper readings (`scale_and_register`'s `measured`, m) against what the
+    scaled `body` measures: a line each, read, fitted and their difference (mm)."""
+    from ..anthropometry._measurements import measurements
+
+    fitted = measurements(body, tuple(measured))
+    rows = [
+        f"  {n}: read {v:.3f} m, fitted {fitted[n]:.3f} m ({1000 * (fitted[n] - v):+.1f} mm)"
+        for n, v in measured.items()
+    ]
+    return "\n".join(["readings against the scaled body:", *rows])

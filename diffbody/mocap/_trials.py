@@ -37,6 +37,7 @@ from ..runs._streaming import (
     tree_hash,
     truncate,
 )
+from ._grades import grade_motion, grade_static, readings_report
 from ._trial_outputs import (
     OUTPUTS,
     load_any_markerset,
@@ -367,6 +368,10 @@ def fit_trials(
             f"{clock.perf_counter() - t0:.1f} s, marker RMS {100 * rms:.2f} cm; "
             f"wrote {body_files[0]}"
         )
+        if readings:
+            log(readings_report(static_fit.body, readings["measured"]))
+        for grade in grade_static(static_fit):  # OpenSim's best practices
+            log(f"  {grade.line()}")
     for path in todo:
         t0 = clock.perf_counter()
         cells = [path.name, shas[path.name] or "", "", "", "error", "", "", ""]
@@ -395,6 +400,8 @@ def fit_trials(
             f"frames converged, marker RMS {100 * float(cells[6]):.2f} cm over the inliers "
             f"({clock.perf_counter() - t0:.1f} s); faulty markers: {cells[7] or 'none'}"
         )
+        for grade in grade_motion(fit):
+            log(f"  {grade.line()}")
     return TrialsSummary(
         out_dir=out_dir,
         summary=summary,

@@ -87,6 +87,7 @@ def test_a_folder_of_trials(recorded, uninterrupted, capsys):
     assert len(header["body-dimensions"]) == 16 and header["markerset"] == "opensim-gait"
     assert header["prior"] == "off" and header["keep-zeros"] == "off" and header["time"] == "(all)"
     assert header["tasks"] == "(none)" and header["float"] == "float64"
+    assert header["measured"] == "(none)"
     assert data_lines(out / "trials.csv")[0] == COLUMNS
     rows = list(csv.DictReader(data_lines(out / "trials.csv")))
     assert [r["trial"] for r in rows] == ["a.trc", "b.trc"]
@@ -193,6 +194,10 @@ def test_a_killed_run_leaves_whole_files_and_resumes(recorded, uninterrupted, tm
         (["--keep-zeros"], "--keep-zeros changed from off to on"),
         (["--time", "2", "4"], "--time changed from (all) to 2.0 4.0"),
         (["--opensim-model", "model.osim"], "--opensim-model changed from gait2354 to model.osim"),
+        (
+            ["--measure", "stature=1.8"],
+            "the readings (--measure, --measure-sd) changed from (none) to stature=1.8 sd=0.005",
+        ),
     ],
 )
 def test_resume_refuses_a_different_run(recorded, uninterrupted, tmp_path, capsys, change, message):
@@ -292,6 +297,9 @@ def test_a_glob_pattern_through_the_python_api(recorded, uninterrupted, tmp_path
     assert read_trc(out / "b.model.trc").n_frames == 4 and (out / "b.png").stat().st_size > 0
     assert data_lines(out / "trials.csv")[1] == data_lines(uninterrupted / "trials.csv")[2]
     assert any(line.startswith("b.trc: 4 frames") for line in lines)
+    # OpenSim's best practices, the static fit's and each trial's, as for one trial.
+    assert any("scaling, " in line and "bony landmarks, RMS" in line for line in lines)
+    assert any(line.startswith("  motion, frames with RMS < 2 cm") for line in lines)
     again = db.fit_trials(
         db.load_body(),
         static,

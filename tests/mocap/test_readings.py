@@ -10,8 +10,9 @@ import pytest
 from compiles import counted_compiles
 
 import diffbody as db
-from diffbody.cli._mocap import read_against_fitted, readings
+from diffbody.cli._mocap import readings
 from diffbody.files._data_files import data_file
+from diffbody.mocap._grades import readings_report
 from diffbody.mocap._static_fit import TAPE_SD
 from diffbody.mocap._trials import _changes, header_fields
 
@@ -105,7 +106,7 @@ def test_the_command_line_reads_its_readings():
         readings(argparse.Namespace(measure=["stature"], measure_sd=None))
     body = db.load_body(variant="male50")
     stature = db.measurements(body, ("stature",))["stature"]
-    text = read_against_fitted(body, {"stature": stature - 0.01})
+    text = readings_report(body, {"stature": stature - 0.01})
     assert f"fitted {stature:.3f} m (+10.0 mm)" in text
 
 
