@@ -18,6 +18,7 @@ import math
 from collections.abc import Mapping
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
@@ -174,7 +175,7 @@ def tape_readings(measured, template: Body, sd=TAPE_SD) -> _Readings | None:
         value[k], inv_sd[k] = v, 1.0 / _positive(f"measured_sd of {name!r}", given_sd, "metres")
     dtype = template.lengths.dtype
     arrays = (_measurement_model(template), value, inv_sd)
-    return _Readings(*(jnp.asarray(a, dtype) for a in arrays))
+    return _Readings(*(jax.device_put(np.asarray(a, dtype)) for a in arrays))
 
 
 def _positive(what: str, v, unit: str) -> float:
@@ -219,7 +220,7 @@ def population_prior(prior, template: Body, sex: str | None, fit=FIT_CHOICES) ->
     dtype = template.lengths.dtype
     A = _measurement_model(template)
     arrays = (A[[LENGTHS.index(n) for n in names]], prior.mean[k], whiten)
-    return _Prior(*(jnp.asarray(a, dtype) for a in arrays))
+    return _Prior(*(jax.device_put(np.asarray(a, dtype)) for a in arrays))
 
 
 class _Static(eqx.Module):
