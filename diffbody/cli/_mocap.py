@@ -100,6 +100,15 @@ def add_mocap_command(sub) -> None:
         help="the readings' standard deviation (default 0.005 m)",
     )
     p.add_argument(
+        "--motion-frames",
+        type=int,
+        default=None,
+        metavar="K",
+        help="one trial: register the markers and scale the body on K frames of the trial "
+        "as well as the static trial (default 8; 0: the static trial alone). A folder of "
+        "trials registers on the static trial alone",
+    )
+    p.add_argument(
         "--time",
         nargs=2,
         type=finite_float,
@@ -183,6 +192,11 @@ _OUTPUTS = (
 
 def _mocap(args) -> int:
     if several_trials(args.motion):
+        if args.motion_frames is not None:
+            raise ValueError(
+                f"--motion-frames: for one trial; a folder of trials ({args.motion}) is "
+                "registered on the static trial alone"
+            )
         return _mocap_trials(args)
     if args.resume:
         raise ValueError(
@@ -194,6 +208,16 @@ def _mocap(args) -> int:
             raise ValueError(f"{flag}: give a {suffix} file name (one trial: {args.motion})")
     args.out = "fit.npz" if args.out is None else args.out
     return _mocap_one(args)
+
+
+def _motion_frames(args) -> int:
+    """--motion-frames, checked (one trial; default `MOTION_FRAMES`)."""
+    from ..mocap._motion_registration import MOTION_FRAMES
+
+    k = MOTION_FRAMES if args.motion_frames is None else args.motion_frames
+    if k < 0:
+        raise ValueError(f"--motion-frames {k}: give 0 (the static trial alone) or more frames")
+    return k
 
 
 def _mocap_trials(args) -> int:
@@ -309,7 +333,15 @@ def _mocap_one(args) -> int:
     t0 = time.perf_counter()
     measured = readings(args)
     static_fit = noted(
-        print, scale_and_register, body, static, markerset, prior=not args.no_prior, **measured
+        print,
+        scale_and_register,
+        body,
+        static,
+        markerset,
+        prior=not args.no_prior,
+        motion=motion,
+        motion_frames=_motion_frames(args),
+        **measured,
     )
     jax.block_until_ready(static_fit)
     if measured:
@@ -354,6 +386,12 @@ def _mocap_one(args) -> int:
         f"{args.static}: {len(static.names)} markers; scaled and registered in {scale_s:.1f} s, "
         f"marker RMS {100 * static_rms:.2f} cm"
     )
+    if static_fit.motion_errors is not None:
+        e = np.asarray(static_fit.motion_errors)
+        print(
+            f"  registered on {len(static_fit.motion_frames)} frames of {args.motion} as well "
+            f"(--motion-frames): their marker RMS {100 * np.sqrt(np.nanmean(e**2)):.2f} cm"
+        )
     print(
         f"{args.motion}: {len(out.times)} frames, {len(out.names)} markers fitted "
         f"in {fit_s:.1f} s ({len(out.times) / fit_s:.3g} frames/s), "

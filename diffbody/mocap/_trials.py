@@ -135,7 +135,7 @@ def header_fields(body, static, markerset, tasks, *, keep_zeros, axes, prior, ti
 
 def _readings_field(readings: dict) -> str:
     """The readings (`scale_and_register`'s measured, measured_sd) in the header."""
-    from ._static_fit import TAPE_SD
+    from ._tape_readings import TAPE_SD
 
     if not readings:
         return "(none)"

@@ -13,7 +13,7 @@ import diffbody as db
 from diffbody.cli._mocap import readings
 from diffbody.files._data_files import data_file
 from diffbody.mocap._grades import readings_report
-from diffbody.mocap._static_fit import TAPE_SD
+from diffbody.mocap._tape_readings import TAPE_SD
 from diffbody.mocap._trials import _changes, header_fields
 
 # m: the shipped subject's stature, as OpenSim's scale set-up gives it (data/mocap/README.md).
