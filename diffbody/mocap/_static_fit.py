@@ -285,11 +285,12 @@ def scale_and_register(
     fit=("lengths", "offsets"),
     sex: str | None = None,
     limits: str = "motion",
-    # Not annotated: a reading of the wrong kind is told by `tape_readings`, by name.
+    # Not annotated: a reading, a motion or a count of the wrong kind is told by
+    # `tape_readings`, `sample_frames` and `motion_frame_count`, by name.
     measured=None,
     measured_sd=TAPE_SD,
-    motion: MarkerTrial | list[MarkerTrial] | None = None,
-    motion_frames: int = MOTION_FRAMES,
+    motion=None,
+    motion_frames=MOTION_FRAMES,
 ) -> StaticFit:
     """Scale a body and register its markers on a static trial (module docstring).
 

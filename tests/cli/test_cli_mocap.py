@@ -49,6 +49,8 @@ def test_mocap_command(trials, tmp_path, capsys):
     assert main(argv + ["--out", str(out), "--png", str(png), "--trc", str(trc)]) == 0
     text = capsys.readouterr().out
     assert "4 frames" in text and "faulty markers: none" in text and "worst other marker:" in text
+    # Registered on the trial's frames as well (all 4 of them: fewer than the default 8).
+    assert f"registered on 4 frames of {trials[1]} as well (--motion-frames)" in text
     # The grades against OpenSim's best practices, the static fit's and the motion's.
     assert "OpenSim's best practices:" in text and "bony landmarks, RMS" in text
     assert "frames with RMS < 2 cm and every marker < 4 cm" in text
@@ -96,9 +98,11 @@ def test_mocap_command(trials, tmp_path, capsys):
 
 def test_mocap_with_opensims_files(trials, tmp_path, capsys):
     """OpenSim's marker set (.xml) and IK set-up (--tasks: its 31 applied markers, weights
-    as in the file) drive the command; the set's markers the tasks switch off weigh 0."""
+    as in the file) drive the command; the set's markers the tasks switch off weigh 0.
+    Registered on the static trial alone (--motion-frames 0): no line says otherwise."""
     out = tmp_path / "fit.npz"
     argv = ["mocap", str(trials[0]), str(trials[1]), "--no-prior", "--out", str(out)]
+    argv += ["--motion-frames", "0"]
     argv += ["--markerset", str(data_file("mocap/gait2354_Scale_MarkerSet.xml"))]
     argv += ["--tasks", str(data_file("mocap/subject01_Setup_IK.xml"))]
     assert main(argv) == 0
@@ -106,6 +110,7 @@ def test_mocap_with_opensims_files(trials, tmp_path, capsys):
     record = db.load_pose(out)
     assert len(record.overlays["markers"]["names"]) == 39 and "4 frames, 39 markers fitted" in text
     assert np.all(np.isfinite(record.pose.angles)) and record.status == ("converged",) * 4
+    assert "registered on" not in text
 
 
 def test_mocap_bad_file_exits_2(trials, tmp_path, capsys):
@@ -131,6 +136,7 @@ def test_mocap_bad_file_exits_2(trials, tmp_path, capsys):
         ("--time", "9 10", "no frame"),
         ("--mot", "angles.csv", ".mot"),
         ("--tasks", "no-such-setup.xml", "no-such-setup.xml"),
+        ("--motion-frames", "-1", "--motion-frames -1: give 0"),
     ],
 )
 def test_mocap_bad_options_exit_2(trials, tmp_path, capsys, option, value, message):

@@ -317,6 +317,7 @@ def test_a_glob_pattern_through_the_python_api(recorded, uninterrupted, tmp_path
     [
         (["--png", "x.png"], "--png x.png: with several trials give --png alone"),
         (["--resume", "--out", "fits.npz"], "--out fits.npz: is a file"),
+        (["--motion-frames", "4"], "--motion-frames: for one trial"),
     ],
 )
 def test_folder_options_exit_2(recorded, tmp_path, capsys, monkeypatch, extra, message):
