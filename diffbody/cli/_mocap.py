@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._args import add_body_args, body_from_args, check_output, finite_float
+from ._args import add_body_args, body_from_args, check_output, finite_float, non_negative_int
 
 FLAG = True  # an output option given alone: with several trials, each trial's file
 
@@ -101,12 +101,9 @@ def add_mocap_command(sub) -> None:
     )
     p.add_argument(
         "--motion-frames",
-        type=int,
-        default=None,
+        type=non_negative_int,
         metavar="K",
-        help="one trial: register the markers and scale the body on K frames of the trial "
-        "as well as the static trial (default 8; 0: the static trial alone). A folder of "
-        "trials registers on the static trial alone",
+        help="one trial: register on K of its frames too (default 8; 0: the static trial alone)",
     )
     p.add_argument(
         "--time",
@@ -210,16 +207,6 @@ def _mocap(args) -> int:
     return _mocap_one(args)
 
 
-def _motion_frames(args) -> int:
-    """--motion-frames, checked (one trial; default `MOTION_FRAMES`)."""
-    from ..mocap._motion_registration import MOTION_FRAMES
-
-    k = MOTION_FRAMES if args.motion_frames is None else args.motion_frames
-    if k < 0:
-        raise ValueError(f"--motion-frames {k}: give 0 (the static trial alone) or more frames")
-    return k
-
-
 def _mocap_trials(args) -> int:
     """A folder or glob pattern of trials: `fit_trials`, interrupts told as a clean stop."""
     from ..mocap._trials import SUMMARY, fit_trials, trial_files
@@ -289,6 +276,7 @@ def _mocap_one(args) -> int:
     from ..mocap._grades import grade_motion, grade_static, readings_report
     from ..mocap._markerset import match_markers
     from ..mocap._motion_fit import fit_motion
+    from ..mocap._motion_registration import MOTION_FRAMES
     from ..mocap._static_fit import scale_and_register
     from ..mocap._trial_outputs import (
         load_any_markerset,
@@ -332,17 +320,9 @@ def _mocap_one(args) -> int:
 
     t0 = time.perf_counter()
     measured = readings(args)
-    static_fit = noted(
-        print,
-        scale_and_register,
-        body,
-        static,
-        markerset,
-        prior=not args.no_prior,
-        motion=motion,
-        motion_frames=_motion_frames(args),
-        **measured,
-    )
+    k = MOTION_FRAMES if args.motion_frames is None else args.motion_frames
+    settings = dict(prior=not args.no_prior, motion=motion, motion_frames=k, **measured)
+    static_fit = noted(print, scale_and_register, body, static, markerset, **settings)
     jax.block_until_ready(static_fit)
     if measured:
         print(readings_report(static_fit.body, measured["measured"]))

@@ -136,7 +136,6 @@ def test_mocap_bad_file_exits_2(trials, tmp_path, capsys):
         ("--time", "9 10", "no frame"),
         ("--mot", "angles.csv", ".mot"),
         ("--tasks", "no-such-setup.xml", "no-such-setup.xml"),
-        ("--motion-frames", "-1", "--motion-frames -1: give 0"),
     ],
 )
 def test_mocap_bad_options_exit_2(trials, tmp_path, capsys, option, value, message):
@@ -144,3 +143,11 @@ def test_mocap_bad_options_exit_2(trials, tmp_path, capsys, option, value, messa
     argv = ["mocap", str(trials[0]), str(trials[1]), option, *value.split(), *out]
     assert main(argv) == 2
     assert message in capsys.readouterr().err
+
+
+def test_mocap_motion_frames_must_be_a_count(trials, tmp_path, capsys):
+    argv = ["mocap", str(trials[0]), str(trials[1]), "--motion-frames", "-1"]
+    with pytest.raises(SystemExit) as stop:
+        main(argv + ["--out", str(tmp_path / "fit.npz")])
+    assert stop.value.code == 2
+    assert "--motion-frames: must be an integer >= 0, got '-1'" in capsys.readouterr().err
