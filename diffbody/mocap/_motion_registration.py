@@ -43,13 +43,17 @@ class Frames(eqx.Module):
     sqrt_w: Float[Array, "k n"]
     scale: Float[Array, ""]
 
-    def rows(self, lay: MocapLayout, lengths: Array, offsets: Array, X: Array) -> Array:
-        """The frames' robust marker rows and pulls, for segment `lengths`, marker `offsets`
-        (n, 3) and the frames' free vectors X (k, n_free): standard scores."""
-        p = jax.vmap(lambda problem, x: tree_markers(lay, problem, lengths, offsets, x))(
+    def markers(self, lay: MocapLayout, lengths: Array, offsets: Array, X: Array) -> Array:
+        """(k, n, 3) m: the model's markers of each frame, for segment `lengths`, marker
+        `offsets` (n, 3) and the frames' free vectors X (k, n_free)."""
+        return jax.vmap(lambda problem, x: tree_markers(lay, problem, lengths, offsets, x))(
             self.problem, X
         )
-        d = p - self.target
+
+    def rows(self, lay: MocapLayout, lengths: Array, offsets: Array, X: Array) -> Array:
+        """The frames' robust marker rows and pulls (`markers`' arguments): standard
+        scores."""
+        d = self.markers(lay, lengths, offsets, X) - self.target
         rows = jax.vmap(robust_rows, in_axes=(0, 0, None))(
             self.sqrt_w[..., None] * d, jnp.sum(d * d, axis=-1), self.scale
         )
@@ -57,9 +61,7 @@ class Frames(eqx.Module):
 
     def errors(self, lay: MocapLayout, lengths: Array, offsets: Array, X: Array) -> Array:
         """(k, n) m: each marker's distance from its measurement, NaN where missing."""
-        p = jax.vmap(lambda problem, x: tree_markers(lay, problem, lengths, offsets, x))(
-            self.problem, X
-        )
+        p = self.markers(lay, lengths, offsets, X)
         return jnp.where(self.sqrt_w > 0, jnp.linalg.norm(p - self.target, axis=-1), jnp.nan)
 
 
