@@ -103,7 +103,7 @@ def add_mocap_command(sub) -> None:
         "--motion-frames",
         type=non_negative_int,
         metavar="K",
-        help="one trial: register on K of its frames too (default 8; 0: the static trial alone)",
+        help="register on K frames of the trials too (default 8; 0: the static trial alone)",
     )
     p.add_argument(
         "--time",
@@ -189,11 +189,6 @@ _OUTPUTS = (
 
 def _mocap(args) -> int:
     if several_trials(args.motion):
-        if args.motion_frames is not None:
-            raise ValueError(
-                f"--motion-frames: for one trial; a folder of trials ({args.motion}) is "
-                "registered on the static trial alone"
-            )
         return _mocap_trials(args)
     if args.resume:
         raise ValueError(
@@ -243,6 +238,7 @@ def _mocap_trials(args) -> int:
                 axes=axes,
                 prior=not args.no_prior,
                 readings=readings(args),
+                motion_frames=motion_frames(args),
                 time=tuple(args.time) if args.time is not None else None,
                 outputs=outputs,
                 opensim_model=args.opensim_model,
@@ -273,10 +269,9 @@ def _mocap_one(args) -> int:
     from ..clouds._cloud_fit import FitStatus
     from ..files._marker_files import read_markers
     from ..files._opensim_files import read_ik_tasks
-    from ..mocap._grades import grade_motion, grade_static, readings_report
+    from ..mocap._grades import grade_motion, grade_static, readings_report, registration_report
     from ..mocap._markerset import match_markers
     from ..mocap._motion_fit import fit_motion
-    from ..mocap._motion_registration import MOTION_FRAMES
     from ..mocap._static_fit import scale_and_register
     from ..mocap._trial_outputs import (
         load_any_markerset,
@@ -320,7 +315,7 @@ def _mocap_one(args) -> int:
 
     t0 = time.perf_counter()
     measured = readings(args)
-    k = MOTION_FRAMES if args.motion_frames is None else args.motion_frames
+    k = motion_frames(args)
     settings = dict(prior=not args.no_prior, motion=motion, motion_frames=k, **measured)
     static_fit = noted(print, scale_and_register, body, static, markerset, **settings)
     jax.block_until_ready(static_fit)
@@ -366,12 +361,8 @@ def _mocap_one(args) -> int:
         f"{args.static}: {len(static.names)} markers; scaled and registered in {scale_s:.1f} s, "
         f"marker RMS {100 * static_rms:.2f} cm"
     )
-    if static_fit.motion_errors is not None:
-        e = np.asarray(static_fit.motion_errors)
-        print(
-            f"  registered on {len(static_fit.motion_frames)} frames of {args.motion} as well "
-            f"(--motion-frames): their marker RMS {100 * np.sqrt(np.nanmean(e**2)):.2f} cm"
-        )
+    if registration_report(static_fit):
+        print(registration_report(static_fit))
     print(
         f"{args.motion}: {len(out.times)} frames, {len(out.names)} markers fitted "
         f"in {fit_s:.1f} s ({len(out.times) / fit_s:.3g} frames/s), "
@@ -422,6 +413,13 @@ def _mocap_one(args) -> int:
         save_curves(args.curves, out, scaled, title=os.path.basename(args.motion))
         print(f"wrote {args.curves} (joint angles and marker error over time)")
     return 1 if np.any(status == FitStatus.FAILED) else 0
+
+
+def motion_frames(args) -> int:
+    """--motion-frames (`MOTION_FRAMES` when not given)."""
+    from ..mocap._motion_registration import MOTION_FRAMES
+
+    return MOTION_FRAMES if args.motion_frames is None else args.motion_frames
 
 
 def readings(args) -> dict:

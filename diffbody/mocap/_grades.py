@@ -98,3 +98,16 @@ def readings_report(body, measured: dict) -> str:
         for n, v in measured.items()
     ]
     return "\n".join(["readings against the scaled body:", *rows])
+
+
+def registration_report(static_fit) -> str | None:
+    """The motion's frames a registration fitted as well (`scale_and_register(motion=)`),
+    and their markers' RMS, in a line; None when it registered on the static trial alone."""
+    if static_fit.motion_errors is None:
+        return None
+    e = np.asarray(static_fit.motion_errors)
+    trials = len({t for t, _ in static_fit.motion_frames})
+    return (
+        f"  registered on {len(static_fit.motion_frames)} frames of {trials} motion trial(s) as "
+        f"well (--motion-frames): their marker RMS {100 * np.sqrt(np.nanmean(e**2)):.2f} cm"
+    )

@@ -1,7 +1,8 @@
 """A folder of motion-capture trials fitted against one static registration (`fit_trials`;
 the command: `diffbody mocap STATIC TRIALS_DIR/`), streamed and resumable.
 
-The body is scaled and registered on the static trial once; every trial is then fitted in
+The body is scaled and registered once, on the static trial and frames spread over every
+trial (`scale_and_register(motion=)`); every trial is then fitted in
 turn, and its files are written into the output folder as soon as it finishes, each whole
 or not at all (`_trial_outputs.written_whole`): `NAME.npz` (the fit's pose file), and on
 request `NAME.mot`, `NAME.model.trc`, `NAME.png`, `NAME.curves.png`; the scaled body once
@@ -28,16 +29,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ..runs._header import BODY_KEYS, body_fields, file_sha256, header_changes
+from ..runs._header import file_sha256
 from ..runs._streaming import (
     Interrupts,
     append_lines,
     header_text,
     replace_atomically,
-    tree_hash,
     truncate,
 )
-from ._grades import grade_motion, grade_static, readings_report
+from ._grades import grade_motion, grade_static, readings_report, registration_report
+from ._motion_registration import MOTION_FRAMES
 from ._trial_outputs import (
     OUTPUTS,
     load_any_markerset,
@@ -48,23 +49,10 @@ from ._trial_outputs import (
     trial_outputs,
     write_trial_files,
 )
+from ._trials_summary import COLUMNS, SUMMARY, header_fields, recorded_rows
 
-FORMAT = "diffbody.mocap-trials/1"  # the summary CSV's layout, its first header line
-SUMMARY = "trials.csv"
 BODY_FILE = "body.json"
 TRIAL_SUFFIXES = (".trc", ".c3d")
-COLUMNS = ["trial", "sha256", "frames", "markers", "status", "converged", "marker_rms_m", "notes"]
-# The settings a resumed run must share with the run that began the file, as a change of
-# each is told.
-_SETTINGS = {
-    "keep-zeros": "--keep-zeros",
-    "axes": "--axes",
-    "prior": "the prior (--no-prior)",
-    "measured": "the readings (--measure, --measure-sd)",
-    "time": "--time",
-    "opensim-model": "--opensim-model",
-    "float": "the float precision (JAX_ENABLE_X64)",
-}
 
 
 @dataclass(frozen=True)
@@ -103,103 +91,6 @@ def trial_files(trials) -> list[Path]:
     else:
         return [path]
     return sorted(found, key=lambda p: (p.name, str(p)))
-
-
-def header_fields(body, static, markerset, tasks, *, keep_zeros, axes, prior, time, readings=None):
-    """The summary CSV's header, in the order written. `--resume` checks all but the file
-    names (`static`, `tasks`: their hashes are checked) and `begun` (UTC)."""
-    from datetime import datetime, timezone
-
-    import jax.numpy as jnp
-
-    names = "\n".join([markerset.name, *markerset.names, *markerset.kinds])
-    layout = np.frombuffer(names.encode(), np.uint8), np.asarray(markerset.segments)
-    return [
-        ("format", FORMAT),
-        ("static", str(static)),
-        ("static-sha256", file_sha256(static)),
-        *body_fields(body),
-        ("markerset", markerset.name),
-        ("markerset-hash", tree_hash((layout, markerset))),
-        ("tasks", str(tasks) if tasks else "(none)"),
-        ("tasks-sha256", file_sha256(tasks) if tasks else "(none)"),
-        ("keep-zeros", "on" if keep_zeros else "off"),
-        ("axes", axes or "(each file's own)"),
-        ("prior", "on" if prior else "off"),
-        ("measured", _readings_field(readings or {})),
-        ("time", f"{time[0]!r} {time[1]!r}" if time is not None else "(all)"),
-        ("float", jnp.dtype(jnp.result_type(float)).name),  # JAX_ENABLE_X64 changes the fits
-        ("begun", datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")),
-    ]
-
-
-def _readings_field(readings: dict) -> str:
-    """The readings (`scale_and_register`'s measured, measured_sd) in the header."""
-    from ._tape_readings import TAPE_SD
-
-    if not readings:
-        return "(none)"
-    sd = readings.get("measured_sd", TAPE_SD)
-    values = " ".join(f"{n}={float(v)!r}" for n, v in sorted(readings["measured"].items()))
-    return f"{values} sd={sd!r}"
-
-
-def _changes(old: dict[str, str], new: dict[str, str]) -> list[str]:
-    """What differs between a summary's header (`old`) and this run's (`new`), in words."""
-    # A summary begun before readings were recorded was begun without any.
-    old = {"measured": "(none)", **old}
-    changes = header_changes(old, new, {"static-sha256": "the static trial"}, _SETTINGS)
-    body_changed = any(old.get(k) != new[k] for k in BODY_KEYS)
-    # The set is resolved on the body: another body moves its offsets, and that is told.
-    if old.get("markerset") != new["markerset"] or (
-        old.get("markerset-hash") != new["markerset-hash"] and not body_changed
-    ):
-        changes.append(
-            f"the marker set changed ({old.get('markerset')} {old.get('markerset-hash')} vs "
-            f"{new['markerset']} {new['markerset-hash']})"
-        )
-    if old.get("tasks-sha256") != new["tasks-sha256"]:
-
-        def sha(h):
-            return h.get("tasks-sha256", "(not recorded)")[:16]
-
-        changes.append(
-            f"--tasks changed from {old.get('tasks', '(not recorded)')} (sha256 {sha(old)}) "
-            f"to {new['tasks']} (sha256 {sha(new)})"
-        )
-    return changes
-
-
-def _recorded(path: Path, fields, shas: dict[str, str | None]):
-    """The summary's header text and its whole rows (line, cells) after checking them
-    against this run; a difference is refused, naming it. Writes nothing."""
-    from ..runs._streaming import read_results, read_rows
-
-    have = read_results(str(path))
-    refuse = "rerun as it was begun, or without --resume to start over"
-    if have.fields.get("format") != FORMAT or have.columns != COLUMNS:
-        raise ValueError(
-            f"--resume {path.parent}: {path} is not a summary of format {FORMAT} with columns "
-            f"{','.join(COLUMNS)}; rerun without --resume to start over"
-        )
-    header, rows = read_rows(have)
-    for number, (_, cells) in enumerate(rows, start=1):
-        if len(cells) != len(COLUMNS):
-            raise ValueError(
-                f"--resume {path.parent}: {path}: trial row {number} has {len(cells)} cells, "
-                f"not {len(COLUMNS)} (the file was edited); rerun without --resume to start over"
-            )
-    changes = _changes(have.fields, dict(fields))
-    for _, cells in rows:
-        name, sha = cells[0], cells[1] if len(cells) > 1 else ""
-        if name not in shas:
-            changes.append(f"the trial {name} is recorded but is not among the trials now")
-        elif shas[name] != sha:
-            now = (shas[name] or "(unreadable)")[:16]
-            changes.append(f"the trial {name} changed (sha256 {sha[:16]}... vs {now}...)")
-    if changes:
-        raise ValueError(f"--resume {path.parent}: {'; '.join(changes)}; {refuse}")
-    return header, rows, have.ends[-1] if have.ends else have.start
 
 
 def noted(log, fn, *args, **kwargs):
@@ -243,6 +134,7 @@ def fit_trials(
     axes: str | None = None,
     prior: bool = True,
     readings: dict | None = None,
+    motion_frames: int = MOTION_FRAMES,
     time: tuple[float, float] | None = None,
     outputs=(),
     opensim_model=None,
@@ -250,8 +142,9 @@ def fit_trials(
     log=print,
     signals=None,
 ) -> TrialsSummary:
-    """Scale and register `body` on the `static` trial once, then fit every trial against
-    it, writing each trial's files and its summary row as it finishes (module docstring).
+    """Scale and register `body` on the `static` trial (and `motion_frames` frames spread
+    over the trials) once, then fit every trial against it, writing each trial's files and
+    its summary row as it finishes (module docstring).
 
     Args:
         body: the template body; static: the static trial's file (.trc or .c3d).
@@ -265,8 +158,10 @@ def fit_trials(
             weights of the motion fits.
         keep_zeros, axes: how the marker files are read (`read_markers`: `zero_is_gap` is
             `not keep_zeros`); prior: `scale_and_register`'s; readings: its readings as
-            keyword arguments ({"measured": {...}, "measured_sd": ...}; None: none); time:
-            (t0, t1) s, the frames of each trial fitted.
+            keyword arguments ({"measured": {...}, "measured_sd": ...}; None: none);
+            motion_frames: the frames of the trials the registration fits as well, spread
+            over every trial that can be read (`scale_and_register`'s; 0: the static trial
+            alone); time: (t0, t1) s, the frames of each trial fitted.
         outputs: the optional files of each trial, names of `OUTPUTS` ("mot", "angles",
             "trc", "png", "curves").
         opensim_model: the OpenSim model each .mot drives (`save_coordinates`; None:
@@ -316,6 +211,7 @@ def fit_trials(
         prior=prior,
         time=time,
         readings=readings,
+        motion_frames=motion_frames,
     )
     fields.insert(-1, ("opensim-model", str(opensim_model) if opensim_model else "gait2354"))
     shas = {}
@@ -327,7 +223,7 @@ def fit_trials(
     summary = out_dir / SUMMARY
     kept = []
     if resume and summary.exists():
-        header, rows, end = _recorded(summary, fields, shas)
+        header, rows, end = recorded_rows(summary, fields, shas)
     elif resume:
         log(f"--resume: no {summary} yet; starting from the first trial")
     with signals.held():
@@ -356,8 +252,12 @@ def fit_trials(
         t0 = clock.perf_counter()
         from ._static_fit import scale_and_register
 
+        # Every readable trial, not the ones left to fit: a resumed run registers as the
+        # run that began the folder did.
+        motion = [m for m in (_read(p, axes, zero_is_gap, time) for p in paths) if m is not None]
+        settings = dict(prior=prior, motion=motion or None, motion_frames=motion_frames)
         static_fit = noted(
-            log, scale_and_register, body, static_trial, markerset, prior=prior, **(readings or {})
+            log, scale_and_register, body, static_trial, markerset, **settings, **(readings or {})
         )
         scaled = scaled_body(static_fit, body)
         with signals.held():
@@ -368,6 +268,8 @@ def fit_trials(
             f"{clock.perf_counter() - t0:.1f} s, marker RMS {100 * rms:.2f} cm; "
             f"wrote {body_files[0]}"
         )
+        if registration_report(static_fit):
+            log(registration_report(static_fit))
         if readings:
             log(readings_report(static_fit.body, readings["measured"]))
         for grade in grade_static(static_fit):  # OpenSim's best practices
@@ -410,6 +312,19 @@ def fit_trials(
         resumed=tuple(sorted(done, key=[p.name for p in paths].index)),
         failed=tuple(n for n in (p.name for p in paths) if n in failed),
     )
+
+
+def _read(path, axes, zero_is_gap, time):
+    """A trial's markers within `time` for the registration; None when it cannot be read or
+    has no frame there (its own fit tells why)."""
+    from ..files._marker_files import read_markers
+
+    try:
+        trial = read_markers(path, axes=axes, zero_is_gap=zero_is_gap)
+    except (OSError, ValueError, KeyError):
+        return None
+    trial = trial if time is None else trial.between(*time)
+    return trial if trial.n_frames else None
 
 
 def _fit_one(path, static_fit, weights_of, tasks, time, axes, zero_is_gap, progress, log):

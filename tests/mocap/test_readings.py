@@ -14,7 +14,7 @@ from diffbody.cli._mocap import readings
 from diffbody.files._data_files import data_file
 from diffbody.mocap._grades import readings_report
 from diffbody.mocap._tape_readings import TAPE_SD
-from diffbody.mocap._trials import _changes, header_fields
+from diffbody.mocap._trials_summary import header_fields, summary_changes
 
 # m: the shipped subject's stature, as OpenSim's scale set-up gives it (data/mocap/README.md).
 SUBJECT_STATURE = 1.803
@@ -138,7 +138,7 @@ def test_a_folder_of_trials_records_its_readings():
     assert read["measured"] == "stature=1.78 sd=0.002" and unread["measured"] == "(none)"
     assert (
         "the readings (--measure, --measure-sd) changed from stature=1.78 sd=0.002 to "
-        "(none)" in _changes(read, unread)
+        "(none)" in summary_changes(read, unread)
     )
     older = {k: v for k, v in unread.items() if k != "measured"}
-    assert not any("readings" in c for c in _changes(older, unread))
+    assert not any("readings" in c for c in summary_changes(older, unread))
