@@ -582,7 +582,8 @@ def benchmark_prose() -> list[str]:
     landed = goal("sphere_cloud", "clouds landed, 5 mm noise, 10% outliers, spread 0.3")
     assert len(curves) == 6 and len({g["goal"] for g in curves}) == 1
     assert all(g["met"] for g in curves)  # hip flexion, knee and ankle, both sides
-    assert not any(g["met"] for g in (far, batch, warm, apart, setup, whole, cloud, landed))
+    assert not any(g["met"] for g in (far, batch, warm, apart, cloud, landed))
+    assert setup["met"] and whole["met"]  # the registration from the motion
     return [
         f"two processes are slower than one ({two / one:.2f}x warm)",
         f"far reaches cost {number(far['measured']):.0f}x off (goal < {number(far['goal']):g}x)",
@@ -592,11 +593,11 @@ def benchmark_prose() -> list[str]:
         f"`solve_reach` (goal {warm['goal']})",
         f"a fit within {number(apart['goal']):g} mm RMS of the shipped `opensim-gait` set on the "
         f"walk, is not met: {number(apart['measured']):.1f} mm apart",
-        f"({number(setup['measured']):.1f} mm over OpenSim's 31 markers, goal "
+        f"met ({number(setup['measured']):.1f} mm over OpenSim's 31 markers, goal "
         f"{number(setup['goal']):g}; {number(whole['measured']):.1f} mm over all 41, goal "
         f"{number(whole['goal']):g})",
         f"meet the {number(curves[0]['goal']):g}-degree goal on both sides",
-        f"The hips' mean offset, {max(hips):.0f} to {min(hips):.0f} degrees",
+        f"The hips' mean offset, {max(hips):.1f} to {min(hips):.1f} degrees",
         f"The knee and ankle offsets (up to {knees_ankles:.0f} degrees)",
         f"Lumbar extension differs by {abs(offsets['lumbar_extension']):.0f} degrees",
         f"Goal: mean < {number(cloud['goal']):g} mm at 5 mm noise and 10 % outliers, **not met**",
