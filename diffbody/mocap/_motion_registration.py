@@ -27,8 +27,9 @@ from ._marker_points import tree_markers
 from ._mocap_solver import MIN_MARKERS, PULL, robust_rows
 
 # Frames of the motion the registration also fits by default: on the shipped walk, 4 frames
-# bring the walk's mean marker RMS from 18.7 to 8.3 mm, 8 to 7.2 mm (docs/benchmarks.md,
-# "Motion capture"); each frame adds its posture's unknowns to the one solve.
+# bring the walk's mean marker RMS from 18.7 to 8.3 mm, 8 to 7.3 mm, 16 to 6.6 mm
+# (docs/guide.md, "Posture fitting from motion capture"); each frame adds its posture's
+# unknowns to the one solve.
 MOTION_FRAMES = 8
 
 

@@ -314,24 +314,10 @@ def fit_trials(
     )
 
 
-def _read(path, axes, zero_is_gap, time):
-    """A trial's markers within `time` for the registration; None when it cannot be read or
-    has no frame there (its own fit tells why)."""
+def _trial(path, axes, zero_is_gap, time):
+    """A trial's markers within `time` (s; None: every frame). Raises what reading it
+    raises, and ValueError for no frame within `time`."""
     from ..files._marker_files import read_markers
-
-    try:
-        trial = read_markers(path, axes=axes, zero_is_gap=zero_is_gap)
-    except (OSError, ValueError, KeyError):
-        return None
-    trial = trial if time is None else trial.between(*time)
-    return trial if trial.n_frames else None
-
-
-def _fit_one(path, static_fit, weights_of, tasks, time, axes, zero_is_gap, progress, log):
-    """One trial's `MotionFit` and its trial (the markers matched to the set)."""
-    from ..files._marker_files import read_markers
-    from ._markerset import match_markers
-    from ._motion_fit import fit_motion
 
     motion = read_markers(path, axes=axes, zero_is_gap=zero_is_gap)
     if time is not None:
@@ -341,6 +327,23 @@ def _fit_one(path, static_fit, weights_of, tasks, time, axes, zero_is_gap, progr
                 f"--time {time[0]:g} {time[1]:g}: no frame of {path} in that range; its "
                 f"frames run {whole.times[0]:.3f}-{whole.times[-1]:.3f} s"
             )
+    return motion
+
+
+def _read(path, axes, zero_is_gap, time):
+    """`_trial` for the registration: None where it raises (the trial's own fit tells why)."""
+    try:
+        return _trial(path, axes, zero_is_gap, time)
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def _fit_one(path, static_fit, weights_of, tasks, time, axes, zero_is_gap, progress, log):
+    """One trial's `MotionFit` and its trial (the markers matched to the set)."""
+    from ._markerset import match_markers
+    from ._motion_fit import fit_motion
+
+    motion = _trial(path, axes, zero_is_gap, time)
     registered, trial = noted(log, match_markers, static_fit.markerset, motion)
     weights = None
     if weights_of is not None:
