@@ -44,9 +44,10 @@ Data: one adult walking (41 markers, 60 Hz, 151 frames) and a static trial (49 m
    frames/s on the same trial, met only at the accuracy of today or better (above).
    diffbody's compile time here is the first call minus the median of the repeats.
 6. **From cold**: in a fresh process without the persistent compilation cache
-   (`common.fresh_process`), the time to a first answer (load, scale, fit the whole trial,
-   compilation included), and `fit_motion`'s compile from cold: its first call minus a
-   second identical one, < 5 s.
+   (`common.fresh_process`), the whole workflow: imports, load, scale and register (on the
+   static trial and 8 frames of the walk), fit the whole trial, compilation included; goal
+   < 20 s. The fit's own first call there finds its program compiled by the registration's
+   frames (one program for every trial length).
 
 Medians of `--repeats` runs (the machine may be shared). OpenSim (`pip install opensim`) is
 optional: without it the OpenSim columns say so.
@@ -54,7 +55,10 @@ optional: without it the OpenSim columns say so.
 `fit_motion` solves the frames in order (`lax.scan`, each from its predecessor's answer)
 rather than all at once under `vmap` from the static pose: the static trial holds the arms out
 sideways, so every frame would travel to the walking arms, and under `vmap` every frame runs
-as long as the slowest.
+as long as the slowest. Even from starts interpolated between every 8th frame's answer, the
+151 frames under `vmap` took 4.3-4.9 s against 0.9 s in order on this machine (mean 15
+steps, the slowest 40-49, and both robust stages run for every frame, a `cond` under `vmap`
+being a `select`).
 
 `--quick` (a smoke run, as in CI): no OpenSim, no fresh process, one repeat.
 
@@ -76,7 +80,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _opensim  # noqa: E402
 import results  # noqa: E402
 from common import (  # noqa: E402
-    cold_compile_goal,
     fresh_process,
     goal,
     load_body,
@@ -101,6 +104,7 @@ UNTOUCHED_GOAL = 2.0  # mm: a faulted copy's RMS over its untouched markers agai
 TODAY_RMS = 15.07
 FRAME_SLACK = 5.0  # mm: no frame's RMS above OpenSim's same frame by more than this
 SPEED_GOAL = 100.0  # diffbody's frames/s over OpenSim's
+WHOLE_COLD_S = 20.0  # s: static + a trial from a fresh process with no compilation cache
 
 # Run by `fresh_process` (JAX on the device, no compilation cache): the whole walk from the
 # files, then a second identical `fit_motion` call.
@@ -671,13 +675,15 @@ def main() -> None:
     )
     if first is not None:
         speed_table.add(
-            f"first answer in a fresh process (load, scale, fit {first['frames']} frames)",
+            f"first answer in a fresh process (load, scale and register, fit {first['frames']} "
+            "frames)",
             "(included)",
             f"{first['answer_s']:.1f}",
             "",
         )
         speed_table.add(
-            f"fit {first['frames']} frames from cold (fresh process, no compilation cache)",
+            f"fit {first['frames']} frames in that process (its program compiled by the "
+            "registration's frames)",
             f"{first['first_s'] - first['second_s']:.1f}",
             f"{first['second_s']:.3f}",
             "",
@@ -702,7 +708,15 @@ def main() -> None:
     else:
         goals.append(not_measured(speed, f">= {SPEED_GOAL:.1f}x", why_not))
     why_cold = "--quick" if args.quick else "--no-first" if args.no_first else ""
-    goals.append(cold_compile_goal(f"fit_motion, {n_all} frames", first, why_cold))
+    whole = (
+        f"the whole workflow from cold: imports, load, scale and register, fit {n_all} frames "
+        "(fresh process, no compilation cache)"
+    )
+    if why_cold or first is None:
+        goals.append(not_measured(whole, f"< {WHOLE_COLD_S:.1f} s", why_cold or "failed"))
+    else:
+        cold_s = first["import_s"] + first["answer_s"]
+        goals.append(goal(whole, cold_s, WHOLE_COLD_S, fmt=".1f", unit=" s", op="<"))
     print_goals(goals, "motion-capture goals", "frames whose fit converged")
     print("  (the speed figure is met only at the accuracy of today or better)")
     run.add_goals(goals)

@@ -27,6 +27,7 @@ functions before it, which JAX's persistent compilation cache does not save.
 import functools
 import hashlib
 import inspect
+import io
 import os
 import pickle
 from pathlib import Path
@@ -232,8 +233,8 @@ def _key(fn, static, treedef, leaves) -> str | None:
     every field, in full), the arrays' structure, shapes and dtypes, the versions. None
     when the static arguments do not pickle (a function made at run time)."""
     try:
-        static_bytes = pickle.dumps(static, protocol=4)
-    except (pickle.PicklingError, AttributeError, TypeError):
+        static_bytes = _pickled(static)
+    except (pickle.PicklingError, AttributeError, TypeError, ValueError):
         return None
     spec = [(jnp.shape(a), str(jnp.result_type(a)), getattr(a, "weak_type", False)) for a in leaves]
     code = inspect.unwrap(fn).__code__
@@ -246,6 +247,17 @@ def _key(fn, static, treedef, leaves) -> str | None:
     h = hashlib.sha256(static_bytes)
     h.update("\n".join(parts).encode())
     return h.hexdigest()[:32]
+
+
+def _pickled(static) -> bytes:
+    """The static arguments pickled without pickle's memo: equal arguments give equal bytes
+    whether or not they share objects (a body whose fields share one tuple, and the same body
+    rebuilt, are one program). ValueError for a cyclic object (the plain path)."""
+    buffer = io.BytesIO()
+    pickler = pickle.Pickler(buffer, protocol=4)
+    pickler.fast = True
+    pickler.dump(static)
+    return buffer.getvalue()
 
 
 @functools.cache

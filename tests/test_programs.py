@@ -116,6 +116,35 @@ def test_a_kept_program_is_read_back_without_tracing(export_folder, monkeypatch)
     assert len(list(export_folder.glob("*.bin"))) == 3
 
 
+class _Shared(eqx.Module):
+    """Static fields that may or may not share one object."""
+
+    a: tuple = eqx.field(static=True)
+    b: tuple = eqx.field(static=True)
+
+
+def _labelled(x, labels: _Shared):
+    TRACED.append(labels.a)
+    return x * len(labels.a)
+
+
+def test_equal_static_arguments_are_one_program_whether_or_not_they_share_objects(
+    export_folder, monkeypatch
+):
+    """Regression: the key pickled the static arguments with pickle's memo, so a body
+    whose fields share a tuple and the same body rebuilt (equal, not shared) were two
+    programs: a later process missed what an earlier one kept."""
+    TRACED.clear()
+    f = _programs.compiled(_labelled)
+    shared = tuple("left right".split())
+    x = jnp.arange(3.0)
+    f(x, _Shared(shared, shared))
+    monkeypatch.setattr(_programs, "_LOADED", {})  # a later process
+    monkeypatch.setattr(_programs, "_SEEN", {})
+    f(x, _Shared(tuple("left right".split()), tuple("left right".split())))
+    assert TRACED == [shared] and len(list(export_folder.glob("*.bin"))) == 1
+
+
 def test_a_damaged_kept_program_is_exported_again(export_folder, monkeypatch):
     """A file cut short (a full disk, a killed process) is traced and written again."""
     f = _programs.compiled(lambda x: x + 1.0)

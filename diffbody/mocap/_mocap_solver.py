@@ -9,6 +9,7 @@ segments (`mocap_layout`), one walk and one closed-form Jacobian per evaluation
 """
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
@@ -47,7 +48,9 @@ def frame_arrays(trial: MarkerTrial, weights: np.ndarray, dtype) -> tuple[Array,
     pos = np.asarray(trial.positions, float)
     present = np.all(np.isfinite(pos), axis=-1)
     sqrt_w = np.where(present, np.sqrt(weights) / MARKER_SD, 0.0)
-    return jnp.asarray(np.where(present[..., None], pos, np.nan), dtype), jnp.asarray(sqrt_w, dtype)
+    # `device_put`: a `jnp.asarray` of a host array compiles a small program per shape.
+    target = np.where(present[..., None], pos, np.nan).astype(dtype)
+    return jax.device_put(target), jax.device_put(sqrt_w.astype(dtype))
 
 
 def masked_targets(target: Array) -> tuple[Array, Array]:

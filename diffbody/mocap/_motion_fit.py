@@ -6,7 +6,10 @@ present markers (a missing marker weighs 0 in its frame) and a weak `PULL` towar
 moved rigidly onto the frame's pelvis markers. The frames are solved in order (`lax.scan`),
 each from its predecessor's answer, a chunk of frames per compiled call
 (`diffbody.runs._batches.map_chunks`, the last answer carried to the next chunk).
-Results are NumPy, frame axis first: poses, markers (f, n, 3) m, errors (f, n) m.
+Every call takes `CHUNK_FRAMES` frames (the last chunk padded with frames that see
+nothing; the markers in name order inside), so one compiled fit serves every trial and the
+registration's frames. Results are NumPy, frame axis first: poses, markers (f, n, 3) m,
+errors (f, n) m.
 """
 
 import dataclasses
@@ -46,6 +49,9 @@ FRAME_STEPS = 100
 WIDE = 10.0  # the first of a frame's two solves runs at this many robust scales
 # m: the robust loss's scale when no static fit gives one (`StaticFit.marker_scale`).
 DEFAULT_SCALE = 0.03
+# Frames per compiled call: every trial's length shares one program. The scan costs the
+# same per frame at any chunk; a padded frame costs no solve.
+CHUNK_FRAMES = 64
 
 
 def _frame_residuals(x: Array, args) -> Array:
@@ -57,11 +63,9 @@ def _frame_residuals(x: Array, args) -> Array:
 
 
 def _solve_frame(problem, lay, offsets, scale, x_start, anchor, target, sqrt_w) -> Solved:
-    """One frame's posture at one robust scale from x_start, weakly pulled toward `anchor`.
-    A frame with fewer than `MIN_MARKERS` markers keeps x_start (FAILED)."""
+    """One frame's posture at one robust scale from x_start, weakly pulled toward `anchor`."""
     args = (problem, lay, offsets, target, sqrt_w, anchor, scale)
-    enough = jnp.sum(sqrt_w > 0) >= MIN_MARKERS
-    return solve(_frame_residuals, make_solver(x_start.dtype), x_start, args, FRAME_STEPS, enough)
+    return solve(_frame_residuals, make_solver(x_start.dtype), x_start, args, FRAME_STEPS)
 
 
 # Where a solve of `_fit_frames`' scan starts: the previous solve's answer, a given start
@@ -123,8 +127,12 @@ def _fit_frames(problem, lay, offsets, scale, starts, measured, sqrt_w, x_first,
             out = _solve_frame(problem, lay, offsets, c, x0, anchor, target, sqrt_w)
             return Solved(out.value, out.status, out.steps.astype(jnp.int32))
 
-        skipped = Solved(x0, jnp.int32(FitStatus.CONVERGED), jnp.int32(0))
-        x, status, steps = jax.lax.cond(wide & ~far, lambda: skipped, solved)
+        # A frame with too few markers (a gap, or the padding of a trial's last chunk)
+        # keeps its start without a solve: FAILED.
+        enough = jnp.sum(sqrt_w > 0) >= MIN_MARKERS
+        kept = jnp.where(enough, FitStatus.CONVERGED, FitStatus.FAILED).astype(jnp.int32)
+        skipped = Solved(x0, kept, jnp.int32(0))
+        x, status, steps = jax.lax.cond((wide & ~far) | ~enough, lambda: skipped, solved)
         args = (problem, lay, offsets, target, sqrt_w, anchor, scale)
         cost = jnp.where(
             status == FitStatus.FAILED, jnp.inf, jnp.sum(_frame_residuals(x, args) ** 2)
@@ -291,7 +299,7 @@ def fit_motion(
     scale: float | None = None,
     limits: str = "motion",
     progress: bool = False,
-    chunk_size: int = 512,
+    chunk_size: int = CHUNK_FRAMES,
 ) -> MotionFit:
     """The posture of every frame of a trial (module docstring).
 
@@ -316,7 +324,7 @@ def fit_motion(
         limits: "motion" (default): the anatomical maximum ranges (`motion_limits`);
             "body": the body's own, comfortable ranges.
         progress: a progress bar on stderr.
-        chunk_size: frames per compiled call (the last chunk padded).
+        chunk_size: frames per compiled call (`CHUNK_FRAMES`; the last chunk padded).
 
     Returns:
         A `MotionFit`: per frame the pose, the model markers, each marker's error (NaN where
@@ -352,12 +360,17 @@ def fit_motion(
         raise ValueError(f"fit_motion: chunk_size must be an integer >= 1, got {chunk_size!r}")
     template = without_names(motion_limits(body) if limits == "motion" else body)
     dtype = template.lengths.dtype
-    lay = mocap_layout(template, markerset)
+    # Inside the fit the markers go in name order: the same set in any order (the trial's,
+    # `select(walk.names)`; the set's, `match_markers`) is one compiled fit.
+    order = np.argsort(markerset.names)
+    fitted = markerset.select([markerset.names[i] for i in order])
+    lay = mocap_layout(template, fitted)
     problem = make_problem_jit(template, lay.pose, start)
     x_rest = make_problem_jit(template, lay.pose, template.rest_pose()).x0
     starts = jnp.stack([problem.x0, x_rest])
-    offsets = jnp.asarray(markerset.offsets, dtype)
-    target, sqrt_w = frame_arrays(trial, w, dtype)
+    offsets = jax.device_put(np.asarray(fitted.offsets, dtype))
+    arrays = frame_arrays(trial.select(fitted.names), w[order], dtype)
+    target, sqrt_w = (np.asarray(a) for a in arrays)
     c = jnp.asarray(scale, dtype)
 
     def chunk_fit(x_last, target, sqrt_w):
@@ -367,16 +380,25 @@ def fit_motion(
         return x_last, tuple(out)
 
     x_first = jnp.full(lay.pose.n_free, jnp.nan, dtype)
-    chunk = min(chunk_size, trial.n_frames)
-    _, (poses, p, err, status, steps) = map_chunks(
+    # Every call solves `chunk_size` frames, the last chunk padded with frames that see
+    # nothing (skipped): one compiled fit serves every trial length, and the registration's
+    # frames (`scale_and_register(motion=)`).
+    n = trial.n_frames
+    pad = -n % chunk_size
+    target = np.concatenate([target, np.full((pad, *target.shape[1:]), np.nan, dtype)])
+    sqrt_w = np.concatenate([sqrt_w, np.zeros((pad, sqrt_w.shape[1]), dtype)])
+    _, out = map_chunks(
         chunk_fit,
         (target, sqrt_w),
-        chunk=chunk,
+        chunk=chunk_size,
         progress=progress,
         label="mocap",
         unit="frame",
         carry=x_first,
     )
+    poses, p, err, status, steps = jax.tree.map(lambda a: a[:n], out)
+    back = np.argsort(order)  # the set's order again
+    p, err = p[:, back], err[:, back]
     rms, worst = _rms_max(err, axis=1)
     return MotionFit(
         poses=poses,

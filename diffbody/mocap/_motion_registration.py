@@ -84,12 +84,7 @@ def sample_frames(
     trial in the set's marker order: NaN where a trial lacks a marker or the marker is dead
     (`MarkerTrial.dead`); and each frame's (trial, frame) index. Raises ValueError when no
     frame qualifies, naming the files."""
-    trials = [motion] if isinstance(motion, MarkerTrial) else list(motion)
-    if not trials or not all(isinstance(t, MarkerTrial) for t in trials):
-        raise TypeError(
-            "scale_and_register: motion must be a MarkerTrial (read_markers) or a list of "
-            f"them, got {motion!r}"
-        )
+    trials = _trials(motion)
     blocks, where = [], []
     for i, trial in enumerate(trials):
         index = {name: j for j, name in enumerate(trial.names)}
@@ -119,3 +114,22 @@ def sample_frames(
         source=", ".join(t.source for t in trials) + f" ({len(pick)} frames)",
     )
     return sampled, tuple(where[p] for p in pick)
+
+
+def motion_markers(markerset: MarkerSet, motion: MarkerTrial | list[MarkerTrial]) -> MarkerSet:
+    """The set restricted to the markers the motion's trials carry, in the set's order: the
+    set `fit_motion` fits the motion with (`match_markers`), so that the registration's fit
+    of its frames reuses that compiled fit."""
+    names = {n for trial in _trials(motion) for n in trial.names}
+    return markerset.select([n for n in markerset.names if n in names])
+
+
+def _trials(motion) -> list[MarkerTrial]:
+    """The motion as a list of trials; TypeError for anything else."""
+    trials = [motion] if isinstance(motion, MarkerTrial) else list(motion)
+    if not trials or not all(isinstance(t, MarkerTrial) for t in trials):
+        raise TypeError(
+            "scale_and_register: motion must be a MarkerTrial (read_markers) or a list of "
+            f"them, got {motion!r}"
+        )
+    return trials

@@ -45,7 +45,13 @@ from ._mocap_solver import (
 )
 from ._motion_fit import fit_motion
 from ._motion_limits import LIMITS, motion_limits
-from ._motion_registration import MOTION_FRAMES, Frames, motion_frame_count, sample_frames
+from ._motion_registration import (
+    MOTION_FRAMES,
+    Frames,
+    motion_frame_count,
+    motion_markers,
+    sample_frames,
+)
 from ._tape_readings import TAPE_SD, Readings, measurement_model, tape_readings
 
 FIT_CHOICES = ("lengths", "radii", "offsets")
@@ -375,7 +381,7 @@ def scale_and_register(
         warnings.simplefilter("ignore", MarkerWarning)
         starts = fit_motion(
             first.body,
-            first.markerset,
+            motion_markers(first.markerset, motion),
             sampled,
             start=first.pose,
             scale=first.marker_scale,

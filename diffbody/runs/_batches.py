@@ -9,7 +9,6 @@ import contextlib
 from collections.abc import Callable, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .._progress import Progress
@@ -74,7 +73,7 @@ def map_chunks(
             for index, at in enumerate(range(0, total, chunk)):
                 m = min(chunk, total - at)
                 part = _pad(jax.tree.map(lambda a: np.asarray(a[at : at + m]), arrays), m, chunk)
-                part = jax.tree.map(jnp.asarray, part)
+                part = jax.device_put(part)
                 kept = store.load(index) if store is not None else None
                 if kept is not None:
                     # The outputs' structure, traced once (not compiled) where no chunk ran.
@@ -89,6 +88,9 @@ def map_chunks(
                     out = fn(*part)
                 else:
                     carry, out = fn(carry, *part)
+                    # Uncommitted, as the first chunk's carry: a carry committed to its
+                    # device would compile `fn` a second time from the second chunk on.
+                    carry = jax.device_put(jax.tree.map(np.asarray, carry))
                 out = jax.tree.map(lambda a, m=m: np.asarray(a)[:m], out)
                 treedef = jax.tree.structure(out)
                 if store is not None:

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from compiles import counted_compiles
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -305,6 +306,29 @@ def test_default_motion_fit_on_the_shipped_walk(shipped):
         segment = names[fit.markerset.segments[fit.markerset.index(name)]]
         if segment.endswith(lower):
             assert per[name][0] < 0.02, (name, segment, per[name])
+
+
+def test_every_trial_length_and_marker_order_is_one_compiled_fit(shipped):
+    """The registration fitted its 8 frames with the program that fits the walk
+    (`CHUNK_FRAMES` frames a call, a trial's last chunk padded with frames that see
+    nothing). The walk with its markers in reverse order, and a part of it of another
+    length, compile nothing; the whole walk gives the same answers, marker for marker, and
+    the part's frames are as good."""
+    fit, motion, _, _ = shipped
+    walk = db.read_trc(data_file("mocap/subject01_walk1.trc"))
+    names = motion.names[::-1]
+    with jax.enable_x64(False), warnings.catch_warnings(), counted_compiles() as compiles:
+        warnings.simplefilter("ignore", MarkerWarning)
+        ms, reversed_walk = fit.markerset.select(names), walk.select(names)
+        args = dict(start=fit.pose, scale=fit.marker_scale)
+        again = fit_motion(fit.body, ms, reversed_walk, **args)
+        part = fit_motion(fit.body, ms, reversed_walk.between(0.5, 1.5), **args)
+    assert compiles == [] and again.names == names
+    order = [motion.names.index(n) for n in names]
+    np.testing.assert_allclose(again.errors, motion.errors[:, order], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(again.rms, motion.rms, rtol=0, atol=1e-6)
+    assert part.status.shape == (61,) and np.all(part.status == FitStatus.CONVERGED)
+    assert np.mean(part.rms) < 0.009
 
 
 def test_the_walk_shows_the_shoulders_the_static_trial_hides(shipped):
