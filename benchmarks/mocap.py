@@ -56,7 +56,7 @@ optional: without it the OpenSim columns say so.
 rather than all at once under `vmap` from the static pose: the static trial holds the arms out
 sideways, so every frame would travel to the walking arms, and under `vmap` every frame runs
 as long as the slowest. Even from starts interpolated between every 8th frame's answer, the
-151 frames under `vmap` took 4.3-4.9 s against 0.9 s in order on this machine (mean 15
+151 frames under `vmap` took 2.3-2.9 s against 0.6 s in order on this machine (mean 15
 steps, the slowest 40-49, and both robust stages run for every frame, a `cond` under `vmap`
 being a `select`).
 
