@@ -386,6 +386,7 @@ def scale_and_register(
             start=first.pose,
             scale=first.marker_scale,
             limits=limits,
+            velocity=False,  # the frames are spread over the motion, not consecutive
         )
     measured, sqrt_w = frame_arrays(sampled, np.asarray(markerset.weights, float), dtype)
     scale = jax.device_put(np.asarray(first.marker_scale, dtype))

@@ -33,10 +33,10 @@ from diffbody.files._motion_files import read_mot
 from diffbody.ik._points import walk_points
 from diffbody.ik._problem import make_problem
 from diffbody.mocap._marker_layout import mocap_layout, rigid_fit, rotation_vector
-from diffbody.mocap._marker_points import tree_markers
+from diffbody.mocap._marker_points import model_markers, tree_markers
 from diffbody.mocap._markerset import MarkerWarning, scale_offsets, world_markers
 from diffbody.mocap._mocap_solver import MIN_MARKERS, robust_rows
-from diffbody.mocap._motion_fit import FRAME_STEPS, fit_motion
+from diffbody.mocap._motion_fit import FRAME_STEPS, VELOCITY, _frame_residuals, fit_motion
 from diffbody.mocap._motion_limits import MOTION_RANGES, motion_limits
 from diffbody.mocap._motion_registration import MOTION_FRAMES
 from diffbody.mocap._static_fit import PRIOR_MEASUREMENTS, population_prior, scale_and_register
@@ -113,7 +113,12 @@ def noisy_static_fit(male50, gait, subject):
 
 @pytest.fixture(scope="module")
 def motion(static_fit, subject):
+    """`fit_motion` of the subject's markers from the static fit; the velocity term off
+    unless asked for (it leans each frame toward the previous one: the exact fit is the
+    test)."""
+
     def run(positions, **kwargs):
+        kwargs.setdefault("velocity", False)
         trial = trial_of(static_fit.markerset.names, positions)
         return fit_motion(
             static_fit.body, static_fit.markerset, trial, start=static_fit.pose, **kwargs
@@ -169,8 +174,13 @@ def test_prior_measurements_are_lengths(male50):
 
 # --- every frame ---------------------------------------------------------------------------
 def test_motion_fit_recovers_the_poses(motion, subject):
-    """Noiseless markers of a smooth motion (a walk forward while turning): every frame's
-    markers to 1e-6 m and its joints to 1e-5 m."""
+    """Noiseless markers of a smooth motion (a walk forward while turning): without the
+    velocity term, every frame's markers to 1e-6 m and its joints to 1e-5 m. With it (the
+    default), within 0.5 mm: the term leans each frame toward the previous one, most on the
+    head's markers, which hold its posture least (every unknown moves 0.05 rad a frame, 3
+    rad/s at 60 Hz)."""
+    leaning = motion(subject["walk"], velocity=True)
+    assert np.all(leaning.status == FitStatus.CONVERGED) and np.max(leaning.errors) < 5e-4
     fit = motion(subject["walk"])
     assert np.all(fit.status == FitStatus.CONVERGED)
     assert np.max(fit.errors) < 1e-6 and np.max(fit.rms) < 1e-6
@@ -179,6 +189,29 @@ def test_motion_fit_recovers_the_poses(motion, subject):
         np.testing.assert_allclose(joints, subject["joints"][k], atol=1e-5)
     per = fit.per_marker()
     assert set(per) == set(fit.names) and max(m for _, m in per.values()) < 1e-6
+
+
+def test_a_frames_velocity_rows_are_its_step_from_the_previous_frame(static_fit):
+    """A frame's rows end with its velocity term, weight (x - x_before) (`VELOCITY`); at
+    weight 0 the other rows are unchanged, so the term off is the fit without it."""
+    body = motion_limits(static_fit.body)
+    lay = mocap_layout(body, static_fit.markerset)
+    problem = make_problem(body, lay.pose, static_fit.pose)
+    rng = np.random.default_rng(5)
+    x = problem.x0 + 0.1 * rng.standard_normal(lay.pose.n_free)
+    before = problem.x0 + 0.1 * rng.standard_normal(lay.pose.n_free)
+    target = np.asarray(model_markers(problem, lay, static_fit.markerset.offsets, problem.x0))
+    sqrt_w = np.full(len(target), 100.0)
+
+    def rows(weight):
+        args = (problem, lay, static_fit.markerset.offsets, target, sqrt_w, problem.x0, 0.03)
+        return np.asarray(_frame_residuals(x, (*args, before, weight)))
+
+    on, off = rows(VELOCITY), rows(0.0)
+    n = lay.pose.n_free
+    np.testing.assert_allclose(on[-n:], VELOCITY * (x - before), rtol=1e-12)
+    np.testing.assert_array_equal(off[-n:], 0.0)
+    np.testing.assert_array_equal(on[:-n], off[:-n])
 
 
 def test_noisy_motion_errors_are_the_noise(motion, subject, static_fit):
@@ -331,6 +364,22 @@ def test_every_trial_length_and_marker_order_is_one_compiled_fit(shipped):
     assert np.mean(part.rms) < 0.009
 
 
+def test_the_velocity_term_barely_moves_what_the_markers_decide(shipped):
+    """The velocity term (on by default) chooses between postures that fit about equally
+    well: off, the shipped walk's frames all converge, the mean marker RMS within 0.01 mm of
+    the default's and each frame's within 0.25 mm (0.001 and 0.17 mm measured), from the same
+    compiled fit (the weight is data)."""
+    fit, motion, _, _ = shipped
+    walk = db.read_trc(data_file("mocap/subject01_walk1.trc"))
+    with jax.enable_x64(False), counted_compiles() as compiles:
+        ms = fit.markerset.select(walk.names)
+        args = dict(start=fit.pose, scale=fit.marker_scale, velocity=False)
+        off = fit_motion(fit.body, ms, walk, **args)
+    assert compiles == [] and np.all(off.status == FitStatus.CONVERGED)
+    assert abs(np.mean(off.rms) - np.mean(motion.rms)) < 1e-5
+    assert np.max(np.abs(off.rms - motion.rms)) < 2.5e-4
+
+
 def test_the_walk_shows_the_shoulders_the_static_trial_hides(shipped):
     """On the shipped walk the static trial alone registers the arms' markers in its T-pose
     and the walk's mean marker RMS is 18.7 mm (benchmarks/mocap.py); registered on 8 of
@@ -371,13 +420,11 @@ def test_the_walks_joint_angles_do_not_jump(shipped):
     deg the largest measured, the right ankle's inversion). Registered on the static trial
     alone, the left arm switched between two postures between frames 100 and 101 (the arm's
     rotation by 83 degrees, the elbow by 44) as its badly registered markers drifted: a jump
-    the markers do not show."""
+    the markers do not show (without the velocity term it still does:
+    `test_the_velocity_term_keeps_an_arm_from_flipping`)."""
     fit, walk, _, _ = shipped
-    with jax.enable_x64(False):
-        angles = walk.angles(fit.body)
-    steps = {n: np.abs(np.diff(np.rad2deg(np.unwrap(np.deg2rad(v))))) for n, v in angles.items()}
-    worst = max(steps, key=lambda n: steps[n].max())
-    assert steps[worst].max() < 10.0, (worst, int(steps[worst].argmax()), steps[worst].max())
+    worst, step = _largest_step(walk, fit.body)
+    assert step < 10.0, (worst, step)
 
 
 # --- faults of real recordings, injected into copies of the shipped walk --------------------
@@ -514,6 +561,33 @@ def walk_alone(shipped):
         return db.fit_motion(alone.body, ms, walk, start=alone.pose, scale=alone.marker_scale)
 
 
+def _largest_step(fit, body) -> tuple[str, float]:
+    """The ISB joint angle that moves most between two frames, and by how much (deg)."""
+    with jax.enable_x64(False):
+        angles = fit.angles(body)
+    steps = {n: np.abs(np.diff(np.rad2deg(np.unwrap(np.deg2rad(v))))) for n, v in angles.items()}
+    worst = max(steps, key=lambda n: steps[n].max())
+    return worst, float(steps[worst].max())
+
+
+def test_the_velocity_term_keeps_an_arm_from_flipping(shipped, walk_alone):
+    """Regression for the velocity term's purpose: registered on the static T-pose alone,
+    the walk's left arm markers fit two arm postures about equally well. Without the term
+    the arm flips between them from one frame to the next (the shoulder's rotation by about
+    105 degrees); with it (the default) no joint angle moves more than 30 degrees a frame
+    (21 measured, as the first frames settle)."""
+    _, _, alone, _ = shipped
+    walk = db.read_trc(data_file("mocap/subject01_walk1.trc"))
+    with jax.enable_x64(False):
+        ms = alone.markerset.select(walk.names)
+        args = dict(start=alone.pose, scale=alone.marker_scale, velocity=False)
+        flipping = db.fit_motion(alone.body, ms, walk, **args)
+    name, step = _largest_step(flipping, alone.body)
+    assert name.endswith("_l") and step > 60.0, (name, step)
+    name, step = _largest_step(walk_alone, alone.body)
+    assert step < 30.0, (name, step)
+
+
 def test_opensim_places_its_markers_from_our_mot_as_from_its_own(shipped, walk_alone, tmp_path):
     """Our .mot for OpenSim's scaled model of the subject (`--opensim-model`), loaded onto
     that model by OpenSim, which places its markers frame by frame: their RMS error against
@@ -617,6 +691,8 @@ def test_bad_input(static_fit, subject, male50, gait):
         fit_motion(
             static_fit.body, ms, walk, start=static_fit.pose, weights=np.zeros(len(ms.names))
         )
+    with pytest.raises(ValueError, match="velocity must be True or False"):
+        fit_motion(static_fit.body, ms, walk, start=static_fit.pose, velocity="on")
     static = trial_of(gait.names, subject["static_markers"][None])
     with pytest.raises(ValueError, match="not a choice"):
         scale_and_register(male50, static, gait, fit=("lengths", "width"))
