@@ -10,11 +10,11 @@ from ._markerset import match_markers as match_markers
 from ._markerset import scale_offsets as scale_offsets
 from ._markerset import world_markers as world_markers
 from ._model_frames import model_frames as model_frames
-from ._motion_fit import MotionFit as MotionFit
 from ._motion_fit import fit_motion as fit_motion
 from ._motion_limits import MOTION_RANGES as MOTION_RANGES
 from ._motion_limits import motion_limits as motion_limits
 from ._motion_plots import draw_motion as draw_motion
+from ._motion_result import MotionFit as MotionFit
 from ._static_fit import StaticFit as StaticFit
 from ._static_fit import scale_and_register as scale_and_register
 from ._trials import TrialsSummary as TrialsSummary

@@ -8,7 +8,7 @@ import numpy as np
 from .._body import Body
 from .._joint_angles import LIMB_JOINTS, LUMBAR_NAMES
 from .._solver import FitStatus
-from ._motion_fit import MotionFit
+from ._motion_result import MotionFit
 
 JOINTS = ("hip", "knee", "ankle")  # the gait joints, drawn by default
 SIDES = (("r", "right"), ("l", "left"))

@@ -666,7 +666,7 @@ def test_float64_motion_fit_converges_on_real_data(male50):
     motion = db.fit_motion(fit.body, ms, part, start=fit.pose, scale=fit.marker_scale)
     assert motion.markers.dtype == np.float64 and motion.status.shape == (13,)
     assert np.all(motion.status == FitStatus.CONVERGED), motion.steps
-    # Two solves a frame (`_solve_frame`), each within its limit; the first from two starts.
+    # Two solves a frame (`_fit_frames`), each within its limit; the first from two starts.
     assert np.all(motion.steps[1:] < 2 * FRAME_STEPS) and 0.019 < np.mean(motion.rms) < 0.022
 
 

@@ -8,8 +8,8 @@ import pytest
 
 import diffbody as db
 from diffbody._solver import FitStatus
-from diffbody.mocap._motion_fit import MotionFit, _rms_max
 from diffbody.mocap._motion_plots import draw_motion, joint_groups
+from diffbody.mocap._motion_result import MotionFit, rms_max
 
 N = 6  # frames
 
@@ -30,7 +30,7 @@ def fit(male50) -> MotionFit:
     errors = rng.uniform(0.002, 0.02, (N, 4))
     errors[2:4, 1] = np.nan
     errors[5] = np.nan
-    rms, worst = _rms_max(errors, axis=1)
+    rms, worst = rms_max(errors, axis=1)
     status = np.full(N, int(FitStatus.CONVERGED))
     status[5] = FitStatus.FAILED
     return MotionFit(
