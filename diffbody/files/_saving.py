@@ -4,6 +4,7 @@
 import json
 from pathlib import Path
 
+import jax
 import numpy as np
 
 from .._body import Body, Spine
@@ -44,6 +45,8 @@ def _limits_doc(body: Body, i: int) -> dict:
 def body_document(body: Body, spine_file: str | None = None) -> dict:
     """The body as a `diffbody.body/1` document (data/SCHEMA.md); `spine_file` names its
     spine database relative to the body file."""
+    # On the host first: indexing a device array compiles a small program per shape.
+    body = jax.tree.map(np.asarray, body)
     origins, radii = np.asarray(body.sphere_origins), np.asarray(body.sphere_radii)
     dirs, seg_of = np.asarray(body.feature_directions), np.asarray(body.sphere_segment)
     features: dict[int, list] = {}
@@ -86,6 +89,7 @@ def body_document(body: Body, spine_file: str | None = None) -> dict:
 
 def spine_document(spine: Spine) -> dict:
     """The spine database as a `diffbody.spine/1` document (data/SCHEMA.md)."""
+    spine = jax.tree.map(np.asarray, spine)
     rest, lo, hi = (np.degrees(np.asarray(a)) for a in (spine.rest, spine.lower, spine.upper))
     joints = [
         {

@@ -364,6 +364,31 @@ def test_every_trial_length_and_marker_order_is_one_compiled_fit(shipped):
     assert np.mean(part.rms) < 0.009
 
 
+def test_a_folder_of_trials_reuses_the_workflows_programs(shipped, tmp_path):
+    """`fit_trials` on a folder of two parts of the walk (61 and 31 frames) after the
+    README's workflow in the same process (the `shipped` fixture): its registration (on the
+    static trial and 8 frames spread over both parts), both trials' fits and their files
+    compile nothing: one registration program, one motion-fit program for every trial
+    (regression: the scaled body's file indexed device arrays, a small program per shape)."""
+    walk = db.read_trc(data_file("mocap/subject01_walk1.trc"))
+    folder = tmp_path / "trials"
+    folder.mkdir()
+    db.write_trc(folder / "a.trc", walk.between(0.5, 1.5))
+    db.write_trc(folder / "b.trc", walk.between(1.6, 2.1))
+    with jax.enable_x64(False), warnings.catch_warnings(), counted_compiles() as compiles:
+        warnings.simplefilter("ignore", MarkerWarning)
+        result = db.fit_trials(
+            db.load_body(variant="male50"),
+            data_file("mocap/subject01_static.trc"),
+            folder,
+            "opensim-gait",
+            tmp_path / "fits",
+            log=lambda line: None,
+        )
+    assert result.ok and result.fitted == ("a.trc", "b.trc")
+    assert compiles == []
+
+
 def test_the_velocity_term_barely_moves_what_the_markers_decide(shipped):
     """The velocity term (on by default) chooses between postures that fit about equally
     well: off, the shipped walk's frames all converge, the mean marker RMS within 0.01 mm of
