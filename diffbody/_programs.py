@@ -134,7 +134,8 @@ def _export_folder() -> Path | None:
 
 
 # --- exported programs ---------------------------------------------------------------------
-_LOADED: dict[str, tuple] = {}  # key -> (the compiled calls, the output's structure)
+# (key, device id) -> (the compiled calls, the output's structure)
+_LOADED: dict[tuple, tuple] = {}
 # (fn, the arguments' structure and static values, the arrays' shapes, dtypes and
 # placements) -> key, or None for the plain path: what a warm call looks up, in microseconds,
 # instead of pickling and hashing its static arguments again.
@@ -152,7 +153,13 @@ def _exported_call(fn, folder: Path, args: tuple, run):
     if key is None:
         return run(args)
     arrays = [a for a, m in zip(leaves, is_array) if m]
-    if key not in _LOADED:
+    # The arguments' one device, given to `jax.jit` as their placement: left to infer it,
+    # jit compiles once per pattern of arrays committed to the device or not (a loaded
+    # body's and a solve's outputs), the same program two or three times.
+    placed = next((a.sharding for a in arrays if isinstance(a, jax.Array)), None)
+    device = placed or jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+    loaded = (key, next(iter(device.device_set)).id)
+    if loaded not in _LOADED:
         dynamic, static = eqx.partition(args, eqx.is_array)
         treedef = jax.tree.structure(dynamic)
         path = folder / f"{key}.bin"
@@ -170,9 +177,12 @@ def _exported_call(fn, folder: Path, args: tuple, run):
             return exported.call(*a)
 
         run_exported.__name__ = getattr(fn, "__name__", "exported")  # fn's name in the logs
-        calls = (jax.jit(run_exported, compiler_options=CPU_OPTIONS), jax.jit(run_exported))
-        _LOADED[key] = (calls, jax.tree.structure(template))
-    (fast, plain), out_structure = _LOADED[key]
+        calls = (
+            jax.jit(run_exported, in_shardings=device, compiler_options=CPU_OPTIONS),
+            jax.jit(run_exported, in_shardings=device),
+        )
+        _LOADED[loaded] = (calls, jax.tree.structure(template))
+    (fast, plain), out_structure = _LOADED[loaded]
     return jax.tree.unflatten(out_structure, with_options(fast, plain, tuple(arrays)))
 
 

@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from compiles import counted_compiles
 
 import diffbody as db
 from diffbody import _programs
@@ -143,6 +144,29 @@ def test_equal_static_arguments_are_one_program_whether_or_not_they_share_object
     monkeypatch.setattr(_programs, "_SEEN", {})
     f(x, _Shared(tuple("left right".split()), tuple("left right".split())))
     assert TRACED == [shared] and len(list(export_folder.glob("*.bin"))) == 1
+
+
+def _affine(a, b):
+    return 2.0 * a + b
+
+
+def test_arrays_committed_to_the_device_or_not_are_one_compiled_program(export_folder):
+    """Regression: jit compiled a kept program once per pattern of arguments committed to
+    the device or not (a body read from its file, and the body a solve returned), the same
+    program two or three times over a workflow: the arguments' device is now given."""
+    f = _programs.compiled(_affine)
+    device = jax.local_devices()[0]
+    loose = jax.device_put(np.ones(3, np.float32))
+    committed = jax.device_put(np.ones(3, np.float32), device)
+    with counted_compiles() as compiles:
+        for args in (
+            (loose, loose),
+            (committed, loose),
+            (loose, committed),
+            (np.ones(3, np.float32), committed),
+        ):
+            np.testing.assert_allclose(f(*args), [3.0, 3.0, 3.0])
+    assert len(compiles) == 1
 
 
 def test_a_damaged_kept_program_is_exported_again(export_folder, monkeypatch):

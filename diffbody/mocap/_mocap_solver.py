@@ -8,13 +8,13 @@ segments (`mocap_layout`), one walk and one closed-form Jacobian per evaluation
 (`tree_markers`).
 """
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike
 
+from .._programs import compiled
 from .._solver import least_squares_solver, tolerance
 from ..files._marker_trial import MarkerTrial
 from ..ik._problem import make_problem
@@ -74,4 +74,4 @@ def robust_rows(rows: Array, squared: Array, scale: ArrayLike) -> Array:
     return rows * factor[:, None]
 
 
-make_problem_jit = eqx.filter_jit(make_problem)
+make_problem_jit = compiled(make_problem)
