@@ -106,6 +106,11 @@ def add_mocap_command(sub) -> None:
         help="register on K frames of the trials too (default 8; 0: the static trial alone)",
     )
     p.add_argument(
+        "--no-velocity",
+        action="store_true",
+        help="no velocity term in the motion fits (each frame only starts from the last)",
+    )
+    p.add_argument(
         "--time",
         nargs=2,
         type=finite_float,
@@ -239,6 +244,7 @@ def _mocap_trials(args) -> int:
                 prior=not args.no_prior,
                 readings=readings(args),
                 motion_frames=motion_frames(args),
+                velocity=not args.no_velocity,
                 time=tuple(args.time) if args.time is not None else None,
                 outputs=outputs,
                 opensim_model=args.opensim_model,
@@ -341,6 +347,7 @@ def _mocap_one(args) -> int:
         start=static_fit.pose,
         weights=weights,
         scale=static_fit.marker_scale,
+        velocity=not args.no_velocity,
         progress=True,
     )
     fit_s = time.perf_counter() - t0

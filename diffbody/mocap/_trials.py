@@ -135,6 +135,7 @@ def fit_trials(
     prior: bool = True,
     readings: dict | None = None,
     motion_frames: int = MOTION_FRAMES,
+    velocity: bool = True,
     time: tuple[float, float] | None = None,
     outputs=(),
     opensim_model=None,
@@ -161,7 +162,8 @@ def fit_trials(
             keyword arguments ({"measured": {...}, "measured_sd": ...}; None: none);
             motion_frames: the frames of the trials the registration fits as well, spread
             over every trial that can be read (`scale_and_register`'s; 0: the static trial
-            alone); time: (t0, t1) s, the frames of each trial fitted.
+            alone); velocity: `fit_motion`'s velocity term (False: off); time: (t0, t1) s,
+            the frames of each trial fitted.
         outputs: the optional files of each trial, names of `OUTPUTS` ("mot", "angles",
             "trc", "png", "curves").
         opensim_model: the OpenSim model each .mot drives (`save_coordinates`; None:
@@ -212,6 +214,7 @@ def fit_trials(
         time=time,
         readings=readings,
         motion_frames=motion_frames,
+        velocity=velocity,
     )
     fields.insert(-1, ("opensim-model", str(opensim_model) if opensim_model else "gait2354"))
     shas = {}
@@ -279,7 +282,16 @@ def fit_trials(
         cells = [path.name, shas[path.name] or "", "", "", "error", "", "", ""]
         try:
             fit, trial = _fit_one(
-                path, static_fit, weights_of, tasks, time, axes, zero_is_gap, progress, log
+                path,
+                static_fit,
+                weights_of,
+                tasks,
+                time,
+                axes,
+                zero_is_gap,
+                velocity,
+                progress,
+                log,
             )
         except Exception as e:  # the trial's error is its row; the others go on
             cells[-1] = _why(e)
@@ -338,7 +350,7 @@ def _read(path, axes, zero_is_gap, time):
         return None
 
 
-def _fit_one(path, static_fit, weights_of, tasks, time, axes, zero_is_gap, progress, log):
+def _fit_one(path, static_fit, weights_of, tasks, time, axes, zero_is_gap, velocity, progress, log):
     """One trial's `MotionFit` and its trial (the markers matched to the set)."""
     from ._markerset import match_markers
     from ._motion_fit import fit_motion
@@ -360,6 +372,7 @@ def _fit_one(path, static_fit, weights_of, tasks, time, axes, zero_is_gap, progr
         start=static_fit.pose,
         weights=weights,
         scale=static_fit.marker_scale,
+        velocity=velocity,
         progress=progress,
     )
     return fit, trial

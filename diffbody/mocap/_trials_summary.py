@@ -20,6 +20,7 @@ SETTINGS = {
     "prior": "the prior (--no-prior)",
     "measured": "the readings (--measure, --measure-sd)",
     "motion-frames": "the registration's frames of the trials (--motion-frames)",
+    "velocity": "the motion fits' velocity term (--no-velocity)",
     "time": "--time",
     "opensim-model": "--opensim-model",
     "float": "the float precision (JAX_ENABLE_X64)",
@@ -27,7 +28,18 @@ SETTINGS = {
 
 
 def header_fields(
-    body, static, markerset, tasks, *, keep_zeros, axes, prior, time, readings=None, motion_frames=0
+    body,
+    static,
+    markerset,
+    tasks,
+    *,
+    keep_zeros,
+    axes,
+    prior,
+    time,
+    readings=None,
+    motion_frames=0,
+    velocity=True,
 ):
     """The summary CSV's header, in the order written. `--resume` checks all but the file
     names (`static`, `tasks`: their hashes are checked) and `begun` (UTC)."""
@@ -51,6 +63,7 @@ def header_fields(
         ("prior", "on" if prior else "off"),
         ("measured", readings_field(readings or {})),
         ("motion-frames", str(motion_frames)),
+        ("velocity", "on" if velocity else "off"),
         ("time", f"{time[0]!r} {time[1]!r}" if time is not None else "(all)"),
         ("float", jnp.dtype(jnp.result_type(float)).name),  # JAX_ENABLE_X64 changes the fits
         ("begun", datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")),
@@ -72,7 +85,9 @@ def summary_changes(old: dict[str, str], new: dict[str, str]) -> list[str]:
     """What differs between a summary's header (`old`) and this run's (`new`), in words."""
     # A summary begun before readings or the registration's frames were recorded was begun
     # without readings, on the static trial alone.
-    old = {"measured": "(none)", "motion-frames": "0", **old}
+    # Summaries from before a setting existed were fitted as its absence: no readings, the
+    # static trial alone, no velocity term.
+    old = {"measured": "(none)", "motion-frames": "0", "velocity": "off", **old}
     changes = header_changes(old, new, {"static-sha256": "the static trial"}, SETTINGS)
     body_changed = any(old.get(k) != new[k] for k in BODY_KEYS)
     # The set is resolved on the body: another body moves its offsets, and that is told.

@@ -96,13 +96,24 @@ def test_mocap_command(trials, tmp_path, capsys):
     assert str(tmp_path / "fit.body.json") in text
 
 
-def test_mocap_with_opensims_files(trials, tmp_path, capsys):
+def test_mocap_with_opensims_files(trials, tmp_path, capsys, monkeypatch):
     """OpenSim's marker set (.xml) and IK set-up (--tasks: its 31 applied markers, weights
     as in the file) drive the command; the set's markers the tasks switch off weigh 0.
-    Registered on the static trial alone (--motion-frames 0): no line says otherwise."""
+    Registered on the static trial alone (--motion-frames 0): no line says otherwise.
+    --no-velocity reaches the motion fit."""
+    from diffbody.mocap import _motion_fit
+
+    asked = []
+
+    def fit_motion(*args, **kwargs):
+        asked.append(kwargs["velocity"])
+        return real(*args, **kwargs)
+
+    real = _motion_fit.fit_motion
+    monkeypatch.setattr(_motion_fit, "fit_motion", fit_motion)
     out = tmp_path / "fit.npz"
     argv = ["mocap", str(trials[0]), str(trials[1]), "--no-prior", "--out", str(out)]
-    argv += ["--motion-frames", "0"]
+    argv += ["--motion-frames", "0", "--no-velocity"]
     argv += ["--markerset", str(data_file("mocap/gait2354_Scale_MarkerSet.xml"))]
     argv += ["--tasks", str(data_file("mocap/subject01_Setup_IK.xml"))]
     assert main(argv) == 0
@@ -110,7 +121,7 @@ def test_mocap_with_opensims_files(trials, tmp_path, capsys):
     record = db.load_pose(out)
     assert len(record.overlays["markers"]["names"]) == 39 and "4 frames, 39 markers fitted" in text
     assert np.all(np.isfinite(record.pose.angles)) and record.status == ("converged",) * 4
-    assert "registered on" not in text
+    assert "registered on" not in text and asked == [False]
 
 
 def test_mocap_bad_file_exits_2(trials, tmp_path, capsys):

@@ -91,6 +91,7 @@ def test_a_folder_of_trials(recorded, uninterrupted, capsys):
     assert header["prior"] == "off" and header["keep-zeros"] == "off" and header["time"] == "(all)"
     assert header["tasks"] == "(none)" and header["float"] == "float64"
     assert header["measured"] == "(none)" and header["motion-frames"] == "4"
+    assert header["velocity"] == "on"
     assert data_lines(out / "trials.csv")[0] == COLUMNS
     rows = list(csv.DictReader(data_lines(out / "trials.csv")))
     assert [r["trial"] for r in rows] == ["a.trc", "b.trc"]
@@ -204,6 +205,10 @@ def test_a_killed_run_leaves_whole_files_and_resumes(recorded, uninterrupted, tm
         (
             ["--motion-frames", "0"],
             "the registration's frames of the trials (--motion-frames) changed from 4 to 0",
+        ),
+        (
+            ["--no-velocity"],
+            "the motion fits' velocity term (--no-velocity) changed from on to off",
         ),
     ],
 )

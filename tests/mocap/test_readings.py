@@ -142,3 +142,9 @@ def test_a_folder_of_trials_records_its_readings():
     )
     older = {k: v for k, v in unread.items() if k != "measured"}
     assert not any("readings" in c for c in summary_changes(older, unread))
+    # Before the velocity term: a summary without the field was fitted without it.
+    assert unread["velocity"] == "on"
+    before = {k: v for k, v in unread.items() if k != "velocity"}
+    velocity = "the motion fits' velocity term (--no-velocity) changed from off to on"
+    assert velocity in summary_changes(before, unread)
+    assert not any("velocity" in c for c in summary_changes(before, unread | {"velocity": "off"}))
