@@ -113,23 +113,22 @@ def _fit_frames(
     source[2 * k] = FROM_BEST
     try_end = np.zeros(2 * (k + b), bool)
     try_end[1 : 2 * k : 2] = True
-    start = np.minimum(np.arange(2 * (k + b)) // 2, k - 1)
+    step_index = np.arange(2 * (k + b))
+    start = np.minimum(step_index // 2, k - 1)
     # A frame's last stage, and whether it follows a frame (a chunk's first frame follows
     # the previous chunk's last, carried); the tries follow none.
-    frame_end = np.zeros(2 * (k + b), bool)
-    frame_end[2 * k + 1 :: 2] = True
-    follows = jnp.asarray(np.arange(2 * (k + b)) >= 2 * k + 2) | (
-        carried & jnp.asarray(np.arange(2 * (k + b)) >= 2 * k)
-    )
-    weight = velocity * follows
+    frame_end = (step_index >= 2 * k) & (step_index % 2 == 1)
+    weight = velocity * ((step_index >= 2 * k + 2) | (carried & (step_index >= 2 * k)))
     inputs = (anchor[frame], target[frame], sqrt_w[frame], wide, source, try_end, start)
     steps_in = (*inputs, frame_end, weight)
 
     def step(carry, inputs):
         x_prev, x_best, best, before = carry
         anchor, target, sqrt_w, wide, source, try_end, start, frame_end, weight = inputs
-        c = jnp.where(wide, WIDE * scale, scale)
-        args = (problem, lay, offsets, target, sqrt_w, anchor, c, before, weight)
+
+        def args_at(c):  # the frame's residuals' arguments at robust scale c
+            return (problem, lay, offsets, target, sqrt_w, anchor, c, before, weight)
+
         x0 = jnp.select([source == FROM_START, source == FROM_BEST], [tries[start], x_best], x_prev)
         # The wide stage only where the start leaves a marker past the outlier distance.
         d = model_markers(problem, lay, offsets, x0) - target
@@ -139,6 +138,7 @@ def _fit_frames(
         )
 
         def solved() -> Solved:
+            args = args_at(jnp.where(wide, WIDE * scale, scale))
             out = solve(_frame_residuals, make_solver(x0.dtype), x0, args, FRAME_STEPS)
             return Solved(out.value, out.status, out.steps.astype(jnp.int32))
 
@@ -148,9 +148,8 @@ def _fit_frames(
         kept = jnp.where(enough, FitStatus.CONVERGED, FitStatus.FAILED).astype(jnp.int32)
         skipped = Solved(x0, kept, jnp.int32(0))
         x, status, steps = jax.lax.cond((wide & ~far) | ~enough, lambda: skipped, solved)
-        args = (*args[:6], scale, *args[7:])  # a try's cost at the robust scale
         cost = jnp.where(
-            status == FitStatus.FAILED, jnp.inf, jnp.sum(_frame_residuals(x, args) ** 2)
+            status == FitStatus.FAILED, jnp.inf, jnp.sum(_frame_residuals(x, args_at(scale)) ** 2)
         )
         better = try_end & (cost < best)
         carry = (
