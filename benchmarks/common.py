@@ -6,9 +6,11 @@ import importlib.metadata
 import json
 import os
 import platform
+import shutil
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -143,25 +145,31 @@ def first_and_second(fn) -> tuple[object, float, float]:
 
 
 def fresh_process(code: str, device: str, x64: bool = False) -> dict | None:
-    """Run Python `code` in a fresh process, JAX on `device` (`select_device`) with its
-    persistent compilation cache off, so that every compile starts from nothing; the JSON
+    """Run Python `code` in a fresh process, JAX on `device` (`select_device`) with an
+    empty compilation cache of its own (as a new install has: XLA's cache and diffbody's
+    exported programs, `_programs`), so that every compile starts from nothing; the JSON
     object its last output line holds (`print_first_and_second`), or None when it failed
-    (its output printed)."""
+    (its output printed). Regression: with JAX's cache merely switched off, diffbody still
+    read the exported programs an earlier run had kept in the user's cache, and skipped
+    their tracing."""
     prologue = (
         f"import sys\nsys.path.insert(0, {BENCHMARKS!r})\nfrom common import select_device\n"
         f"select_device({device!r}, x64={x64!r})\n"
     )
     env = child_env(device)
-    env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    env["JAX_ENABLE_COMPILATION_CACHE"] = "false"
+    empty = tempfile.mkdtemp(prefix="diffbody-cold-")
+    env["JAX_COMPILATION_CACHE_DIR"] = empty
     # From benchmarks/, as this process runs: the same diffbody (not one a folder holds).
-    proc = subprocess.run(
-        [sys.executable, "-c", prologue + code],
-        env=env,
-        cwd=BENCHMARKS,
-        capture_output=True,
-        text=True,
-    )
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", prologue + code],
+            env=env,
+            cwd=BENCHMARKS,
+            capture_output=True,
+            text=True,
+        )
+    finally:
+        shutil.rmtree(empty, ignore_errors=True)
     try:
         return json.loads(proc.stdout.strip().splitlines()[-1])
     except (IndexError, json.JSONDecodeError):

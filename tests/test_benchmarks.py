@@ -155,17 +155,21 @@ def test_compile_from_cold_is_the_first_call_minus_the_second():
     assert skipped.met is None and skipped.measured == "(--quick)"
 
 
-def test_fresh_process_runs_without_the_compilation_cache():
+def test_fresh_process_runs_with_an_empty_compilation_cache():
     """What a compile-from-cold figure stands on: a new interpreter with benchmarks/ on its
-    path, JAX as asked and no persistent compilation cache; a failure is None."""
+    path, JAX as asked and a compilation cache of its own, empty (regression: with JAX's
+    cache switched off, diffbody still read the programs an earlier run had exported into
+    the user's cache), removed afterwards; a failure is None."""
     code = (
         "import os, jax\n"
+        "import diffbody\n"
         "from common import print_first_and_second\n"
+        "folder = jax.config.jax_compilation_cache_dir\n"
         "print_first_and_second(lambda: jax.numpy.zeros(2), x64=jax.config.jax_enable_x64,\n"
-        "    cache=os.environ.get('JAX_ENABLE_COMPILATION_CACHE'),\n"
-        "    cache_dir=os.environ.get('JAX_COMPILATION_CACHE_DIR'))"
+        "    folder=folder, empty=not os.listdir(folder))"
     )
     line = fresh_process(code, "cpu", x64=True)
     assert line is not None and line["first_s"] >= 0 and line["second_s"] >= 0
-    assert line["x64"] is True and line["cache"] == "false" and line["cache_dir"] is None
+    assert line["x64"] is True and line["empty"] and "diffbody-cold-" in line["folder"]
+    assert not os.path.exists(line["folder"])
     assert fresh_process("raise SystemExit(3)", "cpu") is None
