@@ -34,7 +34,13 @@ def _fit(args) -> int:
 
     import numpy as np
 
-    from ..clouds._cloud_fit import INLIER_DISTANCE, LANDED_INLIERS, FitStatus, fit_spheres
+    from ..clouds._cloud_fit import (
+        INLIER_DISTANCE,
+        LANDED_COVERED,
+        LANDED_INLIERS,
+        FitStatus,
+        fit_spheres,
+    )
     from ..files._cloud_file import read_cloud
     from ..files._saving import save_body
 
@@ -56,12 +62,18 @@ def _fit(args) -> int:
     )
     if residual.size:
         print(f"inlier residual: median {1000 * np.median(residual):.1f} mm")
+    runner_up = float(out.runner_up)
+    other = f", the next start's {runner_up:.3f}" if np.isfinite(runner_up) else ""
+    print(
+        f"score {float(out.score):.3f} (0: every sphere on its place){other}; "
+        f"{100 * float(out.covered):.0f} % of the model's spheres covered"
+    )
     landed = bool(out.landed)
     if not landed:
         print(
-            f"did not land: fewer than {100 * LANDED_INLIERS:.0f} % of the spheres are inliers "
-            "(the cloud may not be a body, or the start search found no posture near it; "
-            "correspondences help)"
+            f"did not land: it needs {100 * LANDED_INLIERS:.0f} % of the spheres inliers and "
+            f"{100 * LANDED_COVERED:.0f} % of the model's spheres covered (the cloud may not "
+            "be a body, or no start found a posture near it; correspondences help)"
         )
     from ..anthropometry._scaling import SCALE_GROUPS
     from ..files._pose_file import save_pose
@@ -82,7 +94,14 @@ def _fit(args) -> int:
             "radial": out.radial,
         },
         overlays={"cloud": {"centers": centers, "radii": radii, "inliers": inliers}},
-        extra={"cloud": args.cloud, "landed": landed, "steps": int(out.steps)},
+        extra={
+            "cloud": args.cloud,
+            "landed": landed,
+            "score": float(out.score),
+            "runner_up": runner_up if np.isfinite(runner_up) else None,
+            "covered": float(out.covered),
+            "steps": int(out.steps),
+        },
     )
     print(f"wrote {path} (the fitted body) and {pose_path} (its pose and the fit)")
     if args.png:

@@ -54,10 +54,8 @@ def test_exact_clouds_with_correspondences_give_back_the_scale_factors(male50):
     np.testing.assert_allclose(kin.sphere_centers, centers[0], atol=1e-6)
 
 
-# Two of the eight clouds (seeds 0-7) this test once fitted, both of which the fit lands:
-# mean segment-length error 1.81 mm (worst segment 18 mm) and 0.63 mm (4.2 mm) today. How
-# many such clouds land is the benchmark's (docs/benchmarks.md, sphere-cloud fits: 11 of 32
-# in this cell, against a goal of 95 %); none of the other six lands (2.2 to 9.1 mm).
+# Two of the eight clouds (seeds 0-7) this test once fitted, both of which the fit lands. How
+# many such clouds land is the benchmark's (docs/benchmarks.md, sphere-cloud fits).
 LANDING_SEEDS = (2, 5)
 
 
