@@ -34,13 +34,8 @@ def _fit(args) -> int:
 
     import numpy as np
 
-    from ..clouds._cloud_fit import (
-        INLIER_DISTANCE,
-        LANDED_COVERED,
-        LANDED_INLIERS,
-        FitStatus,
-        fit_spheres,
-    )
+    from ..clouds._annealing import INLIER_DISTANCE, LANDED_COVERED, LANDED_INLIERS
+    from ..clouds._cloud_fit import FitStatus, fit_spheres
     from ..files._cloud_file import read_cloud
     from ..files._saving import save_body
 

@@ -8,7 +8,7 @@ import pytest
 
 import diffbody as db
 from diffbody.anthropometry._scaling import per_segment
-from diffbody.clouds._cloud_fit import (
+from diffbody.clouds._annealing import (
     INLIER_DISTANCE,
     LANDED_COVERED,
     LANDED_INLIERS,
@@ -62,11 +62,33 @@ def three_clouds(male50):
 
 
 @pytest.fixture(scope="module")
-def fits(male50):
-    """One batch, one compiled program, of `three_clouds`: (fit, true lengths)."""
+def fitted_chunk(male50):
+    """One batch, one compiled program, of `three_clouds`: (fit, true lengths, what the
+    compiled fit handed back for the chunk)."""
+    import diffbody.clouds._cloud_fit as sphere_fit
+
     centers, radii, lengths = three_clouds(male50)
-    fit = db.fit_spheres_batch(male50, centers, radii, chunk_size=3, progress=False)
-    return fit, lengths
+    run, kept = sphere_fit._fit_many_jit, []
+
+    def keep(*args):
+        out = run(*args)
+        if not isinstance(jax.tree.leaves(args[3])[0], jax.core.Tracer):
+            kept.append(out)
+        return out
+
+    sphere_fit._fit_many_jit = keep
+    try:
+        fit = db.fit_spheres_batch(male50, centers, radii, chunk_size=3, progress=False)
+    finally:
+        sphere_fit._fit_many_jit = run
+    (chunk,) = kept
+    return fit, lengths, chunk
+
+
+@pytest.fixture(scope="module")
+def fits(fitted_chunk):
+    """`fitted_chunk`'s fit and true lengths."""
+    return fitted_chunk[:2]
 
 
 def length_error(fit, lengths, i) -> float:
@@ -179,26 +201,33 @@ def test_the_search_tables(male50):
     assert np.array_equal(keep, search_spheres(male50))
 
 
-def test_a_batch_kept_in_a_folder_resumes_after_an_interrupt(fits, male50, tmp_path, monkeypatch):
+def test_a_batch_kept_in_a_folder_resumes_after_an_interrupt(
+    fitted_chunk, male50, tmp_path, monkeypatch
+):
     """fit_spheres_batch(out=): the fixture's clouds twice, in two chunks of the same
     compiled size; an interrupt in the second keeps the first (`Interrupted` says so);
-    resume=True reads it and fits the second: every cloud as the fixture's one call fits
-    it. Other clouds are refused by name."""
+    resume=True reads it and fits the second: every cloud as the fixture's one call fits it.
+    Other clouds are refused by name. (The compiled fit hands back what it handed the
+    fixture for these clouds: this is the folder's test, and a fit of two chunks of the
+    nine-start fit would take a minute.)"""
     import diffbody.clouds._cloud_fit as sphere_fit
     from diffbody.runs._streaming import Interrupted
 
-    fit, _ = fits
+    fit, _, chunk = fitted_chunk
     centers, radii, _ = (np.concatenate([a] * 2) for a in three_clouds(male50))
     run, calls = sphere_fit._fit_many_jit, []
+    expected = next(three_clouds(male50))
 
-    def run_then_stop(*args):
-        if not isinstance(jax.tree.leaves(args[3])[0], jax.core.Tracer):
-            calls.append(1)
-            if len(calls) == 2:
-                raise KeyboardInterrupt
-        return run(*args)
+    def replay_then_stop(*args):
+        if isinstance(jax.tree.leaves(args[3])[0], jax.core.Tracer):
+            return run(*args)
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        np.testing.assert_allclose(np.asarray(args[3].measured)[..., :3], expected, atol=1e-12)
+        return chunk
 
-    monkeypatch.setattr(sphere_fit, "_fit_many_jit", run_then_stop)
+    monkeypatch.setattr(sphere_fit, "_fit_many_jit", replay_then_stop)
     kept = tmp_path / "clouds"
     with pytest.raises(Interrupted, match=f"interrupted after 3 of 6 rows; {kept} holds them"):
         db.fit_spheres_batch(male50, centers, radii, chunk_size=3, progress=False, out=kept)
