@@ -220,18 +220,21 @@ def fit_from_starts(template: Body, lay: FitLayout, inits: Pose, align, cloud: C
     the cloud best (`score` at `MID_SCALE`: the fit is not yet cold) run the rest, and the
     one of least `score` is kept, the next one's score its `runner_up`. The steps are those
     of every start."""
-    begun = jax.vmap(lambda i, a: begin(template, lay, i, cloud, a))(inits, align)
-    stages = schedule(lay, False, begun[2][0].dtype)
+    inits, starts, begun = jax.vmap(lambda i, a: begin(template, lay, i, cloud, a))(inits, align)
+    z_starts = begun[0]
+    stages = schedule(lay, False, z_starts.dtype)
     early = jax.tree.map(lambda a: a[:SPLIT], stages)
     late = jax.tree.map(lambda a: a[SPLIT:], stages)
-    carries = jax.vmap(lambda st, c: anneal(st, lay, cloud, c, early))(begun[1], begun[2])
+    carries = jax.vmap(lambda st, c: anneal(st, lay, cloud, c, early))(starts, begun)
+    z_mid, steps_mid = carries[0], carries[2]
     mid = jax.vmap(lambda st, z: score(distances_at(st, lay, cloud, z)[0], MID_SCALE))(
-        begun[1], carries[0]
+        starts, z_mid
     )
     top = jnp.argsort(mid)[:FINALISTS]
-    init, start, z_start = jax.tree.map(lambda a: a[top], (begun[0], begun[1], begun[2][0]))
-    early_steps = jnp.sum(carries[2]) - jnp.sum(carries[2][top])
-    carries = jax.tree.map(lambda a: a[top], carries)
+    early_steps = jnp.sum(steps_mid) - jnp.sum(steps_mid[top])
+    init, start, z_start, carries = jax.tree.map(
+        lambda a: a[top], (inits, starts, z_starts, carries)
+    )
 
     def finish(init, start, carry, z_start):
         carry = anneal(start, lay, cloud, carry, late)
