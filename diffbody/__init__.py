@@ -36,8 +36,7 @@ from .runs._streaming import Interrupted
 # A later process reads back what this one compiles (docs/design.md, section 3, "Programs").
 keep_compiled()
 
-# The families load on first use (PEP 562): `diffbody reach` needs neither the image nor the
-# motion-capture code, and importing every family costs a few tenths of a second.
+# The families load on first use (PEP 562): importing them all costs tenths of a second.
 _FAMILIES = {
     "anthropometry": (
         "MEASUREMENT_NAMES",
@@ -139,6 +138,7 @@ _FAMILIES = {
         "image_sequence",
         "joint_centres_from_markers",
         "lift",
+        "lift_views",
         "load_walk_joints",
         "look_at",
         "perpendicular_foot",
@@ -149,6 +149,7 @@ _FAMILIES = {
         "refine",
         "reprojection_errors",
         "to_camera",
+        "triangulate",
         "true_reflections",
         "walking_motion",
         "webb",
@@ -257,6 +258,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         image_sequence,
         joint_centres_from_markers,
         lift,
+        lift_views,
         load_walk_joints,
         look_at,
         perpendicular_foot,
@@ -267,6 +269,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
         refine,
         reprojection_errors,
         to_camera,
+        triangulate,
         true_reflections,
         walking_motion,
         webb,
@@ -423,6 +426,8 @@ __all__ = [
     "Lifting",
     "refine",
     "lift",
+    "lift_views",
+    "triangulate",
     "joint_centres_from_markers",
     "load_walk_joints",
     "draw_lifting",

@@ -1,6 +1,7 @@
 """Image sequences (Webb, "Static Analysis of Moving Jointed Objects"): the observed joint
 tree, the pinhole camera, Webb's lengths from 2D joints, reflections chosen by continuity,
-the joint refinement, synthetic motions and the pictures of a sequence."""
+the joint refinement, several calibrated cameras, synthetic motions and the pictures of a
+sequence."""
 
 from ._joint_centres import (
     joint_centres_from_markers as joint_centres_from_markers,
@@ -76,6 +77,18 @@ from ._sequence_plots import (
 )
 from ._sequence_plots import (
     reprojection_errors as reprojection_errors,
+)
+from ._views import (
+    ViewsLifting as ViewsLifting,
+)
+from ._views import (
+    lift_views as lift_views,
+)
+from ._views import (
+    stack_cameras as stack_cameras,
+)
+from ._views import (
+    triangulate as triangulate,
 )
 from ._webb import (
     WebbResult as WebbResult,

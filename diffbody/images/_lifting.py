@@ -56,7 +56,7 @@ class LiftOptions(eqx.Module):
     tol: float = eqx.field(default=1e-2, static=True)  # optimistix rtol = atol (RMS norm)
 
 
-def _tangent_basis(d: Array) -> tuple[Array, Array]:
+def tangent_basis(d: Array) -> tuple[Array, Array]:
     """Two unit vectors spanning the plane perpendicular to unit vectors d (..., 3)."""
     ax = jnp.argmin(jnp.abs(d), axis=-1)
     h = jax.nn.one_hot(ax, 3, dtype=d.dtype)
@@ -64,7 +64,7 @@ def _tangent_basis(d: Array) -> tuple[Array, Array]:
     return e1, jnp.cross(d, e1)
 
 
-def _cauchy(e: Array, c: Float[Array, ""] | float | None) -> Array:
+def cauchy(e: Array, c: Float[Array, ""] | float | None) -> Array:
     """Residual vectors e (..., 2) scaled so that |e'|^2 = c^2 log(1 + |e|^2 / c^2) (the
     Cauchy loss); e itself when c is None. Smooth at e = 0."""
     if c is None:
@@ -89,7 +89,7 @@ class _Problem(eqx.Module):
     e2: Array  # (T, P, 3)
 
 
-def _ancestors(tree: JointTree) -> np.ndarray:
+def ancestors(tree: JointTree) -> np.ndarray:
     """(J, P) 0/1: part k lies on the path from the reference to joint j (`on_paths` over
     the parts, each part's parent the part that ends where it starts)."""
     part_of = {e: k for k, e in enumerate(tree.part_end)}
@@ -105,9 +105,25 @@ def _joints(tree: JointTree, options: LiftOptions, groups, y: FrameUnknowns, pb:
     d = safe_normalize(pb.d0 + ab[..., :1] * pb.e1 + ab[..., 1:] * pb.e2, pb.d0)
     root = jnp.concatenate([pb.root0 + y.frames[:, 0], pb.depth[:, None]], -1)
     # every joint is the reference plus the part vectors on its path: one product
-    A = jnp.asarray(_ancestors(tree), d.dtype)
+    A = jnp.asarray(ancestors(tree), d.dtype)
     pos = root[:, None] + jnp.einsum("jk,tkc->tjc", A, lengths[None, :, None] * d)
     return pos, d, lengths, focal
+
+
+def shape_rows(options: LiftOptions, d: Array, log_len: Array, log_len0: Array) -> list[Array]:
+    """The frame rows (T, .) that keep the skeleton's shape: the hinge limits of the part
+    directions d (T, P, 3), when `options.limits`; the log lengths toward the start, when
+    `options.length_sigma` (border-only rows, carried by frame 0's row)."""
+    rows = []
+    if options.limits:
+        k, up, ang = (np.asarray(v) for v in zip(*options.limits))
+        cos = jnp.sum(d[:, k] * d[:, up], -1)
+        rows.append(jax.nn.relu(np.cos(ang) - cos) / options.limit_sigma)
+    if options.length_sigma is not None:
+        pull = (log_len - log_len0) / options.length_sigma
+        first = jnp.arange(d.shape[0])[:, None] == 0
+        rows.append(jnp.where(first, pull[None], 0.0))
+    return rows
 
 
 def _residuals(y: FrameUnknowns, args) -> FrameResiduals:
@@ -115,17 +131,8 @@ def _residuals(y: FrameUnknowns, args) -> FrameResiduals:
     pos, d, lengths, focal = _joints(tree, options, groups, y, pb)
     z = jnp.maximum(pos[..., 2], 1e-3)
     e = (focal * pos[..., :2] / z[..., None] - pb.uv) / options.pixel_sigma
-    frame = [_cauchy(e, options.robust).reshape(e.shape[0], -1)]
-    if options.limits:
-        k, up, ang = (np.asarray(v) for v in zip(*options.limits))
-        cos = jnp.sum(d[:, k] * d[:, up], -1)
-        frame.append(jax.nn.relu(np.cos(ang) - cos) / options.limit_sigma)
-    if options.length_sigma is not None:
-        # border-only rows, carried by frame 0's row
-        G = pb.log_len0.shape[0]
-        pull = (y.border[:G] - pb.log_len0) / options.length_sigma
-        first = jnp.arange(pos.shape[0])[:, None] == 0
-        frame.append(jnp.where(first, pull[None], 0.0))
+    frame = [cauchy(e, options.robust).reshape(e.shape[0], -1)]
+    frame += shape_rows(options, d, y.border[: pb.log_len0.shape[0]], pb.log_len0)
     root = pos[:, tree.root] * jnp.asarray([1.0, 1.0, 0.0], pos.dtype)
     vec = jnp.concatenate([root[:, None], lengths[None, :, None] * d], axis=1)  # (T, E, 3)
     a = options.accel_sigma
@@ -133,6 +140,13 @@ def _residuals(y: FrameUnknowns, args) -> FrameResiduals:
     scale = jnp.stack([a, a, zs]).astype(pos.dtype)
     acc = (vec[:-2] - 2 * vec[1:-1] + vec[2:]) / scale
     return FrameResiduals(frame=jnp.concatenate(frame, -1), window=acc)
+
+
+def group_log_lengths(lengths: Array, groups) -> Array:
+    """(G,) the mean log length of each length group's parts (lengths (P,), m)."""
+    g, n = jnp.asarray(groups), max(groups) + 1
+    total = jax.ops.segment_sum(jnp.log(lengths), g, n)
+    return total / jax.ops.segment_sum(jnp.ones_like(lengths), g, n)
 
 
 def lift_kernel(
@@ -148,18 +162,14 @@ def lift_kernel(
     """`refine` on one sequence (no input checks; at least 3 frames). `linear_solver`: a
     lineax solver for the steps instead of `BandedSchurCholesky` (a dense one, to compare)."""
     groups = tree.length_groups(options.symmetric)
-    n_groups = max(groups) + 1
     s, e = np.asarray(tree.part_start), np.asarray(tree.part_end)
     vec = init_joints[:, e] - init_joints[:, s]
     fallback = jnp.asarray([0.0, 0.0, 1.0], uv.dtype)
     d0 = safe_normalize(vec, fallback)
-    e1, e2 = _tangent_basis(d0)
+    e1, e2 = tangent_basis(d0)
     w = rays(uv, focal)
     root0 = (w[:, tree.root] * (root_depth / focal)[:, None])[:, :2]
-    g = jnp.asarray(groups)
-    log_len = jax.ops.segment_sum(jnp.log(init_lengths), g, n_groups) / jax.ops.segment_sum(
-        jnp.ones_like(init_lengths), g, n_groups
-    )
+    log_len = group_log_lengths(init_lengths, groups)
     pb = _Problem(log_len, uv, root_depth, focal, root0, d0, e1, e2)
     border = jnp.concatenate([log_len, jnp.log(focal)[None]]) if options.refine_focal else log_len
     T, P = d0.shape[:2]
@@ -182,7 +192,7 @@ def lift_kernel(
     )
 
 
-def _check_options(options: LiftOptions, what: str) -> None:
+def check_options(options: LiftOptions, what: str) -> None:
     """Refuse weights that are not finite and > 0 (host side), naming the option."""
     for name in ("pixel_sigma", "accel_sigma", "limit_sigma", "tol"):
         v = getattr(options, name)
@@ -252,7 +262,7 @@ def refine(
         )
     if not np.all(np.isfinite(lengths) & (lengths > 0)):
         raise ValueError("refine: init_lengths must be finite numbers > 0 m")
-    _check_options(options, "refine")
+    check_options(options, "refine")
     dtype = jnp.zeros(()).dtype
     options = jax.tree.map(lambda v: jnp.asarray(v, dtype), options)
     return _lift_jit(
@@ -300,7 +310,7 @@ def lift(
     if uv.shape[-3] < 3:
         raise ValueError(f"lift: needs at least 3 frames (accelerations), got {uv.shape[-3]}")
     a = check_anchor(tree, anchor, uv.shape, anchor_frame, order, "lift")
-    _check_options(options, "lift")
+    check_options(options, "lift")
     dtype = jnp.zeros(()).dtype
     options = jax.tree.map(lambda v: jnp.asarray(v, dtype), options)
     return _pipeline_jit(

@@ -23,11 +23,12 @@ Point = Sequence[float | int] | np.ndarray  # m, three coordinates (host side)
 
 
 class Pinhole(eqx.Module):
-    """A pinhole camera placed in the world: focal length (px) and pose."""
+    """A pinhole camera placed in the world: focal length (px) and pose; several cameras
+    stacked along a leading view axis (`stack_cameras`)."""
 
-    focal: Float[Array, ""]  # px
-    R_camera_world: Float[Array, "3 3"]  # world -> camera axes
-    p_world_camera: Float[Array, "3"]  # m, centre of projection in the world
+    focal: Float[Array, "*v"]  # px
+    R_camera_world: Float[Array, "*v 3 3"]  # world -> camera axes
+    p_world_camera: Float[Array, "*v 3"]  # m, centre of projection in the world
 
 
 class ImageSequence(eqx.Module):

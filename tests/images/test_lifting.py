@@ -211,7 +211,7 @@ def test_residual_derivatives(tree, noisy_walk):
     s, e = np.asarray(tree.part_start), np.asarray(tree.part_end)
     d0 = joints[:, e] - joints[:, s]
     d0 = d0 / jnp.linalg.norm(d0, axis=-1, keepdims=True)
-    e1, e2 = _lifting._tangent_basis(d0)
+    e1, e2 = _lifting.tangent_basis(d0)
     pb = _lifting._Problem(
         jnp.log(jnp.asarray(lengths[[groups.index(g) for g in range(8)]])),
         jnp.asarray(seq.uv[:T]),
