@@ -25,6 +25,7 @@ from .._rotations import safe_normalize
 from .._solver import least_squares_solver, solve
 from ._banded import BandedSchurCholesky, FrameResiduals, FrameUnknowns
 from ._joint_tree import JointTree
+from ._length_prior import LengthPrior
 from ._webb import check_sequence, rays
 
 
@@ -52,6 +53,9 @@ class LiftOptions(eqx.Module):
     symmetric: bool = eqx.field(default=True, static=True)  # left and right share a length
     limits: tuple[tuple[int, int, float], ...] = eqx.field(default=(), static=True)
     refine_focal: bool = eqx.field(default=False, static=True)
+    # The population prior on the log lengths (`length_prior`); with it the pull toward the
+    # start holds the lengths only from below (Webb's are lower bounds). Needs `symmetric`.
+    prior: LengthPrior | None = None
     max_steps: int = eqx.field(default=8, static=True)
     tol: float = eqx.field(default=1e-2, static=True)  # optimistix rtol = atol (RMS norm)
 
@@ -112,18 +116,22 @@ def _joints(tree: JointTree, options: LiftOptions, groups, y: FrameUnknowns, pb:
 
 def shape_rows(options: LiftOptions, d: Array, log_len: Array, log_len0: Array) -> list[Array]:
     """The frame rows (T, .) that keep the skeleton's shape: the hinge limits of the part
-    directions d (T, P, 3), when `options.limits`; the log lengths toward the start, when
-    `options.length_sigma` (border-only rows, carried by frame 0's row)."""
-    rows = []
+    directions d (T, P, 3), when `options.limits`; the log group lengths toward the start,
+    when `options.length_sigma` (only from below with a prior); the prior's whitened rows,
+    when `options.prior`. Border-only rows are carried by frame 0's row."""
+    rows, border = [], []
     if options.limits:
         k, up, ang = (np.asarray(v) for v in zip(*options.limits))
         cos = jnp.sum(d[:, k] * d[:, up], -1)
         rows.append(jax.nn.relu(np.cos(ang) - cos) / options.limit_sigma)
     if options.length_sigma is not None:
-        pull = (log_len - log_len0) / options.length_sigma
-        first = jnp.arange(d.shape[0])[:, None] == 0
-        rows.append(jnp.where(first, pull[None], 0.0))
-    return rows
+        short = log_len - log_len0
+        short = short if options.prior is None else jnp.minimum(short, 0.0)
+        border.append(short / options.length_sigma)
+    if options.prior is not None:
+        border.append(options.prior.whiten @ (log_len - options.prior.mean))
+    first = jnp.arange(d.shape[0])[:, None] == 0
+    return rows + [jnp.where(first, b[None], 0.0) for b in border]
 
 
 def _residuals(y: FrameUnknowns, args) -> FrameResiduals:
@@ -192,8 +200,16 @@ def lift_kernel(
     )
 
 
-def check_options(options: LiftOptions, what: str) -> None:
-    """Refuse weights that are not finite and > 0 (host side), naming the option."""
+def check_options(options: LiftOptions, what: str, tree: JointTree | None = None) -> None:
+    """Refuse weights that are not finite and > 0 (host side), naming the option, and a
+    prior that is not the tree's."""
+    if options.prior is not None and tree is not None:
+        n = max(tree.length_groups(True)) + 1
+        if np.shape(options.prior.mean) != (n,) or np.shape(options.prior.whiten) != (n, n):
+            raise ValueError(
+                f"{what}: options.prior has {np.shape(options.prior.mean)} groups, the tree "
+                f"{n}; build it for this tree with length_prior(tree, sex)"
+            )
     for name in ("pixel_sigma", "accel_sigma", "limit_sigma", "tol"):
         v = getattr(options, name)
         if not (np.isfinite(v) and v > 0):
@@ -202,6 +218,11 @@ def check_options(options: LiftOptions, what: str) -> None:
         v = getattr(options, name)
         if v is not None and not (np.isfinite(v) and v > 0):
             raise ValueError(f"{what}: options.{name} must be a number > 0 or None, got {v!r}")
+    if options.prior is not None and not options.symmetric:
+        raise ValueError(
+            f"{what}: options.prior is over the length groups of symmetric lengths; "
+            "set symmetric=True"
+        )
     if options.max_steps < 1:
         raise ValueError(f"{what}: options.max_steps must be >= 1, got {options.max_steps}")
 
@@ -262,7 +283,7 @@ def refine(
         )
     if not np.all(np.isfinite(lengths) & (lengths > 0)):
         raise ValueError("refine: init_lengths must be finite numbers > 0 m")
-    check_options(options, "refine")
+    check_options(options, "refine", tree)
     dtype = jnp.zeros(()).dtype
     options = jax.tree.map(lambda v: jnp.asarray(v, dtype), options)
     return _lift_jit(
@@ -310,7 +331,7 @@ def lift(
     if uv.shape[-3] < 3:
         raise ValueError(f"lift: needs at least 3 frames (accelerations), got {uv.shape[-3]}")
     a = check_anchor(tree, anchor, uv.shape, anchor_frame, order, "lift")
-    check_options(options, "lift")
+    check_options(options, "lift", tree)
     dtype = jnp.zeros(()).dtype
     options = jax.tree.map(lambda v: jnp.asarray(v, dtype), options)
     return _pipeline_jit(

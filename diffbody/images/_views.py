@@ -261,7 +261,7 @@ def lift_views(
     options = options or LiftOptions()
     cameras = stack_cameras(cameras)
     uv = check_views(tree, cameras, uv, "lift_views")
-    check_options(options, "lift_views")
+    check_options(options, "lift_views", tree)
     if options.refine_focal:
         raise ValueError(
             "lift_views: options.refine_focal must be False; the cameras are calibrated "
