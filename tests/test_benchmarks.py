@@ -40,6 +40,7 @@ BENCHMARKS = (
     "anthropometry",
     "mocap",
     "webb",
+    "lifting_prior",
     "_sphere_cloud",
     "collision",
     "batch",

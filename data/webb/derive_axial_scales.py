@@ -10,8 +10,6 @@ Run from the repository root: python data/webb/derive_axial_scales.py
 
 from pathlib import Path
 
-import numpy as np
-
 import diffbody as db
 from diffbody.anthropometry._prior import ansur2_subjects
 

@@ -1,7 +1,7 @@
 """Image sequences (Webb, "Static Analysis of Moving Jointed Objects"): the observed joint
 tree, the pinhole camera, Webb's lengths from 2D joints, reflections chosen by continuity,
-the joint refinement, several calibrated cameras, synthetic motions and the pictures of a
-sequence."""
+the joint refinement, the population prior on part lengths, several calibrated cameras,
+synthetic motions and the pictures of a sequence."""
 
 from ._joint_centres import (
     joint_centres_from_markers as joint_centres_from_markers,
@@ -20,6 +20,12 @@ from ._joint_tree import (
 )
 from ._joint_tree import (
     write_joint_tree as write_joint_tree,
+)
+from ._length_prior import (
+    LengthPrior as LengthPrior,
+)
+from ._length_prior import (
+    length_prior as length_prior,
 )
 from ._lifting import (
     Lifting as Lifting,
