@@ -316,6 +316,10 @@ def image_sequences_holds(f: dict) -> None:
     by_frames = np.asarray(list(f["webb_and_floor_pct_by_frames"].values()))
     assert np.all(np.diff(by_frames[:, 1]) < 0.0)
     assert np.all(by_frames[:, 0] >= by_frames[:, 1] - 1e-6)
+    # two calibrated cameras on the real walk: lengths within 2 % (its joint centres are not
+    # rigid), joints within 10 mm
+    length, mpjpe = f["real_walk_two_cameras"]
+    assert length < 2.0 and mpjpe < 10.0
 
 
 def image_sequences_agrees(got: dict, saved: dict) -> None:
@@ -328,6 +332,10 @@ def image_sequences_agrees(got: dict, saved: dict) -> None:
         np.asarray(list(f["webb_and_floor_pct_by_frames"].values()))[:, 1] for f in (got, saved)
     )
     close(floor, saved_floor, 0.02, "floor (%)")
+    close(got["real_walk_two_cameras"], saved["real_walk_two_cameras"], [0.1, 0.5], "two cameras")
+    close(
+        got["real_walk_prior_error_pct"], saved["real_walk_prior_error_pct"], 0.5, "with the prior"
+    )
 
 
 # --- posture_fitting ---------------------------------------------------------------------
