@@ -18,6 +18,11 @@ It starts from the triangulated joints, each part's length the median over the f
 its triangulated length. The reference joint's three coordinates are two of
 `BandedSchurCholesky`'s per-frame entities of two unknowns, (x, y) and (z, pad); the pad
 unknown has a unit row of its own that holds it at zero.
+
+A view that does not see a joint gives NaN for its image point: triangulation uses the views
+that see it (a joint seen by fewer than two is NaN there, and starts from its nearest frame
+that is seen twice), and the fit has no reprojection row for it: the rigid parts and the
+accelerations carry a joint through frames where no view sees it.
 """
 
 from collections.abc import Sequence
@@ -81,18 +86,37 @@ def triangulate(
 ) -> Float[Array, "*b 3"]:
     """World points (..., 3) m nearest in the least-squares sense to the rays of their
     image points uv (V, ..., 2) px in V >= 2 cameras (a list, or stacked: `stack_cameras`):
-    the solve of sum_v (I - d_v d_v^T) X = sum_v (I - d_v d_v^T) c_v (module docstring).
-    Rays that are all parallel leave X along them undetermined: the cameras must see from
-    apart. No input checks (`lift_views` has them); differentiable in uv and the cameras."""
+    the solve of sum_v (I - d_v d_v^T) X = sum_v (I - d_v d_v^T) c_v over the views that
+    see the point (module docstring). An image point of NaN is a point that view does not
+    see; a point seen by fewer than two views is NaN. Rays that are all parallel leave X
+    along them undetermined: the cameras must see from apart. No input checks
+    (`lift_views` has them); differentiable in uv and the cameras."""
     cameras = stack_cameras(cameras)
     uv = jnp.asarray(uv)
-    d = world_rays(cameras, uv)
+    seen = jnp.all(jnp.isfinite(uv), axis=-1)  # (V, ...)
+    d = world_rays(cameras, jnp.where(seen[..., None], uv, 0.0))
     P = jnp.eye(3, dtype=uv.dtype) - d[..., :, None] * d[..., None, :]  # (V, ..., 3, 3)
+    P = jnp.where(seen[..., None, None], P, 0.0)
     lead = (uv.shape[0],) + (1,) * (uv.ndim - 2)
     c = cameras.p_world_camera.reshape(lead + (3,)).astype(uv.dtype)
-    A = jnp.sum(P, axis=0)
+    twice = jnp.sum(seen, axis=0) >= 2
+    A = jnp.where(twice[..., None, None], jnp.sum(P, axis=0), jnp.eye(3, dtype=uv.dtype))
     b = jnp.sum(jnp.einsum("v...ab,v...b->v...a", P, jnp.broadcast_to(c, d.shape)), axis=0)
-    return jnp.linalg.solve(A, b[..., None])[..., 0]
+    X = jnp.linalg.solve(A, b[..., None])[..., 0]
+    return jnp.where(twice[..., None], X, jnp.nan)
+
+
+def nearest_seen(X: Float[Array, "T J 3"]) -> Float[Array, "T J 3"]:
+    """Each joint's NaN frames (T, J, 3) filled from its nearest frame that is not NaN
+    (ties: the earlier); a joint NaN in every frame stays NaN."""
+    T = X.shape[0]
+    ok = jnp.all(jnp.isfinite(X), axis=-1)  # (T, J)
+    t = jnp.arange(T)[:, None]
+    before = jax.lax.cummax(jnp.where(ok, t, -1), axis=0)
+    after = jax.lax.cummin(jnp.where(ok, t, T), axis=0, reverse=True)
+    use_before = (before >= 0) & ((after >= T) | (t - before <= after - t))
+    src = jnp.clip(jnp.where(use_before, before, after), 0, T - 1)
+    return jnp.take_along_axis(X, src[..., None], axis=0)
 
 
 class _Problem(eqx.Module):
@@ -118,11 +142,17 @@ def _joints(tree: JointTree, groups, cameras: Pinhole, y: FrameUnknowns, pb: _Pr
 
 
 def reprojection(cameras: Pinhole, pos: Array, uv: Array) -> Array:
-    """(V, T, J, 2) px: where the V cameras see world points pos (T, J, 3), less uv."""
+    """(V, T, J, 2) px: where the V cameras see world points pos (T, J, 3), less uv; 0
+    where uv is NaN (not seen)."""
     R, c = cameras.R_camera_world, cameras.p_world_camera
     p = jnp.einsum("vab,tjb->vtja", R, pos) - jnp.einsum("vab,vb->va", R, c)[:, None, None]
     z = jnp.maximum(p[..., 2], 1e-3)
-    return cameras.focal[:, None, None, None] * p[..., :2] / z[..., None] - uv
+    seen = jnp.isfinite(uv)
+    return jnp.where(
+        seen,
+        cameras.focal[:, None, None, None] * p[..., :2] / z[..., None] - jnp.where(seen, uv, 0.0),
+        0.0,
+    )
 
 
 def _residuals(y: FrameUnknowns, args) -> FrameResiduals:
@@ -154,12 +184,14 @@ def views_kernel(
 ) -> ViewsLifting:
     """`lift_views` on one sequence (no input checks; at least 3 frames, V >= 2)."""
     groups = tree.length_groups(options.symmetric)
-    joints = triangulate(cameras, uv)  # (T, J, 3)
+    seen_twice = triangulate(cameras, uv)  # (T, J, 3), NaN where fewer than two views see
     s, e = np.asarray(tree.part_start), np.asarray(tree.part_end)
+    length0 = jnp.nanmedian(jnp.linalg.norm(seen_twice[:, e] - seen_twice[:, s], axis=-1), 0)
+    joints = nearest_seen(seen_twice)
     vec = joints[:, e] - joints[:, s]
     d0 = safe_normalize(vec, jnp.asarray([0.0, 0.0, 1.0], uv.dtype))
     e1, e2 = tangent_basis(d0)
-    log_len = group_log_lengths(jnp.median(jnp.linalg.norm(vec, axis=-1), axis=0), groups)
+    log_len = group_log_lengths(length0, groups)
     pb = _Problem(log_len, uv, joints[:, tree.root], d0, e1, e2)
     T, P = d0.shape[:2]
     y0 = FrameUnknowns(border=log_len, frames=jnp.zeros((T, P + 2, 2), uv.dtype))
@@ -170,10 +202,11 @@ def views_kernel(
     y, status, steps = solve(_residuals, solver, y0, args, options.max_steps)
     pos, _, lengths = _joints(tree, groups, cameras, y, pb)
     err = reprojection(cameras, pos, uv)
+    n_seen = jnp.sum(jnp.all(jnp.isfinite(uv), -1))
     return ViewsLifting(
         lengths=lengths,
         joints=pos,
-        reprojection_rms=jnp.sqrt(jnp.mean(jnp.sum(err * err, -1))),
+        reprojection_rms=jnp.sqrt(jnp.sum(err * err) / jnp.maximum(n_seen, 1)),
         steps=steps,
         status=status,
     )
@@ -221,14 +254,25 @@ def check_views(tree: JointTree, cameras: Pinhole, uv, what: str) -> np.ndarray:
         )
     if uv.shape[-3] < 3:
         raise ValueError(f"{what}: needs at least 3 frames (accelerations), got {uv.shape[-3]}")
-    bad = np.argwhere(~np.isfinite(uv))
+    bad = np.argwhere(np.isinf(uv) | (np.isnan(uv) != np.isnan(uv[..., ::-1])))
     if len(bad):
         i = tuple(int(x) for x in bad[0])
         seq = f" of sequence {i[:-4]}" if len(i) > 4 else ""
         raise ValueError(
             f"{what}: the image point of joint {tree.names[i[-2]]!r} in frame {i[-3]} of view "
-            f"{i[-4]}{seq} is {float(uv[i]):g}; every joint needs a finite position (px) in "
-            "every view and frame"
+            f"{i[-4]}{seq} is {uv[i[:-1]].tolist()}; give a finite (u, v) in px, or NaN for "
+            "both where that view does not see the joint"
+        )
+    # A part's start: a frame where two views see both its ends.
+    twice = np.sum(np.all(np.isfinite(uv), -1), axis=-3) >= 2  # (..., T, J)
+    both = twice[..., list(tree.part_start)] & twice[..., list(tree.part_end)]
+    never = np.argwhere(~np.any(both, axis=-2))  # (..., P)
+    if len(never):
+        i = tuple(int(x) for x in never[0])
+        seq = f" in sequence {i[:-1]}" if len(i) > 1 else ""
+        raise ValueError(
+            f"{what}: no frame{seq} has both ends of part {tree.part_names[i[-1]]!r} seen by "
+            "two or more views; give such a frame (its length starts there)"
         )
     return uv
 
@@ -248,7 +292,9 @@ def lift_views(
         cameras: two or more `Pinhole` cameras (`look_at`, `camera_around`), or one with a
             leading view axis.
         uv: image points (..., V, T, J, 2) px from each camera's principal point, v down;
-            leading axes are a batch of sequences seen by the same cameras; T >= 3.
+            NaN (both coordinates) where a view does not see a joint; leading axes are a
+            batch of sequences seen by the same cameras; T >= 3. Every part needs a frame
+            where two views see both its ends.
         options: `LiftOptions` (pixel noise, accelerations, robust loss, symmetric lengths,
             hinge limits, steps); `depth_accel_sigma` does not apply (the accelerations are
             the same in every direction) and `refine_focal` is refused (the cameras are

@@ -14,7 +14,7 @@ from diffbody.images._joint_tree import default_joint_tree
 from diffbody.images._lifting import LiftOptions
 from diffbody.images._motions import walking_motion
 from diffbody.images._pinhole import camera_around, project, to_camera
-from diffbody.images._views import lift_views, stack_cameras, triangulate
+from diffbody.images._views import lift_views, nearest_seen, stack_cameras, triangulate
 
 F = 1000.0
 AZIMUTHS = (20.0, 110.0)  # two cameras 90 degrees apart
@@ -164,3 +164,52 @@ def test_bad_input_is_refused(tree, walk):
         lift_views(tree, [cams[0], cams[0]], uv)
     with pytest.raises(ValueError, match="pixel_sigma"):
         lift_views(tree, cams, uv, LiftOptions(pixel_sigma=0.0))
+
+
+def test_a_view_that_does_not_see_a_point_is_left_out():
+    """NaN in one of three views: the point the other two give; in two of three: NaN."""
+    cams = [camera_around([0.0, 0.0, 1.0], 3.0, az, 1.2, F) for az in (0.0, 70.0, 150.0)]
+    uv = _images(cams, np.asarray([[0.2, 0.1, 1.1]]), noise=0.7)[:, 0]
+    hidden = uv.copy()
+    hidden[1] = np.nan
+    np.testing.assert_allclose(
+        triangulate(cams, hidden), triangulate([cams[0], cams[2]], uv[[0, 2]]), atol=1e-12
+    )
+    # derivatives stay finite beside a hidden view, and none flows from it
+    J = np.asarray(jax.jacfwd(lambda u: triangulate(cams, u))(jnp.asarray(hidden)))
+    assert np.all(np.isfinite(J)) and not np.any(J[:, 1])
+    hidden[0] = np.nan
+    assert np.all(np.isnan(np.asarray(triangulate(cams, hidden))))
+
+
+def test_nearest_seen_fills_from_the_nearest_frame():
+    X = np.arange(6.0)[:, None, None] * np.ones((6, 2, 3))
+    X[[0, 2, 3], 0] = np.nan  # joint 0 seen in frames 1, 4, 5
+    X[:, 1] = np.nan  # joint 1 never
+    got = np.asarray(nearest_seen(jnp.asarray(X)))
+    np.testing.assert_array_equal(got[:, 0, 0], [1, 1, 1, 4, 4, 5])  # frame 2 ties: the earlier
+    assert np.all(np.isnan(got[:, 1]))
+
+
+def test_missing_detections(tree, walk):
+    """Three views, a fifth of the image points missing at random and the left wrist seen
+    by no view for four frames, 1 px of noise: lengths within 1 %, joints within 10 mm, the
+    hidden wrist within 3 cm where no view sees it."""
+    world, cams2 = walk
+    centre = world[:, tree.root].mean(0)
+    cams = cams2 + [camera_around([centre[0], centre[1], 1.0], 3.0, 200.0, 1.2, F)]
+    uv = _images(cams, world, 1.0, seed=3)
+    rng = np.random.default_rng(4)
+    uv[rng.random(uv.shape[:-1]) < 0.2] = np.nan
+    wrist = tree.index("left_wrist")
+    uv[:, 10:14, wrist] = np.nan
+    out = lift_views(tree, cams, uv)
+    rel = np.abs(np.asarray(out.lengths) / _part_lengths(tree, world[0]) - 1).mean()
+    error = np.linalg.norm(np.asarray(out.joints) - world, axis=-1)
+    assert rel < 0.01 and error.mean() < 0.010, (rel, error.mean())
+    assert error[10:14, wrist].max() < 0.03, error[10:14, wrist]
+    assert int(out.status) != FitStatus.FAILED and np.isfinite(float(out.reprojection_rms))
+    blind = uv.copy()
+    blind[:, :, wrist] = np.nan  # the left forearm's far end never seen
+    with pytest.raises(ValueError, match="left_elbow->left_wrist"):
+        lift_views(tree, cams, blind)
