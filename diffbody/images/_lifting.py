@@ -21,6 +21,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._chain import on_paths
+from .._programs import compiled
 from .._rotations import safe_normalize
 from .._solver import least_squares_solver, solve
 from ._banded import BandedSchurCholesky, FrameResiduals, FrameUnknowns
@@ -227,8 +228,7 @@ def check_options(options: LiftOptions, what: str, tree: JointTree | None = None
         raise ValueError(f"{what}: options.max_steps must be >= 1, got {options.max_steps}")
 
 
-@eqx.filter_jit
-def _lift_jit(tree, uv, root_depth, focal, init_joints, init_lengths, options):
+def _lift(tree, uv, root_depth, focal, init_joints, init_lengths, options):
     flat = uv.shape[:-3]
     n = int(np.prod(flat))
     T, J = uv.shape[-3:-1]
@@ -240,6 +240,11 @@ def _lift_jit(tree, uv, root_depth, focal, init_joints, init_lengths, options):
         init_lengths.reshape(n, tree.n_parts),
     )
     return jax.tree.map(lambda x: x.reshape(flat + x.shape[1:]), out)
+
+
+# Compiled without XLA's CPU fusion emitters (half the compile, the same answers) and kept
+# exported beside the compilation cache (`_programs.compiled`).
+_lift_jit = compiled(_lift)
 
 
 def refine(
@@ -297,8 +302,7 @@ def refine(
     )
 
 
-@eqx.filter_jit
-def _pipeline_jit(tree, uv, root_depth, focal, anchor, anchor_frame, order, options):
+def _pipeline(tree, uv, root_depth, focal, anchor, anchor_frame, order, options):
     from ._reflections import choose_kernel, over_sequences
 
     def one(a, b, c, d):
@@ -307,6 +311,9 @@ def _pipeline_jit(tree, uv, root_depth, focal, anchor, anchor_frame, order, opti
         return choice, lift_kernel(tree, a, b, c, choice.joints, start, options)
 
     return over_sequences(one, tree, uv, root_depth, focal, anchor)
+
+
+_pipeline_jit = compiled(_pipeline)
 
 
 def lift(

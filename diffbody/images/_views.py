@@ -34,6 +34,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._programs import compiled
 from .._rotations import safe_normalize
 from .._solver import least_squares_solver, solve
 from ._banded import BandedSchurCholesky, FrameResiduals, FrameUnknowns
@@ -212,13 +213,15 @@ def views_kernel(
     )
 
 
-@eqx.filter_jit
-def _views_jit(tree, cameras, uv, options):
+def _views(tree, cameras, uv, options):
     flat = uv.shape[:-4]
     n = int(np.prod(flat))
     V, T, J = uv.shape[-4:-1]
     out = jax.vmap(lambda a: views_kernel(tree, cameras, a, options))(uv.reshape(n, V, T, J, 2))
     return jax.tree.map(lambda x: x.reshape(flat + x.shape[1:]), out)
+
+
+_views_jit = compiled(_views)  # as the one-camera lifting's (`_lifting`)
 
 
 def check_views(tree: JointTree, cameras: Pinhole, uv, what: str) -> np.ndarray:
