@@ -14,6 +14,10 @@ MPJPE (camera frame, absolute: the reference depth is given) and the MPJPE after
 alignment (each sequence's joints about the reference joint scaled by the least-squares
 factor onto the truth's). Beside each, labelled and easier than the goals: the refinement
 from the true reflections in every frame, which tells the reflections' share of the error.
+Then three cameras of unknown placement (`lift_views_uncalibrated`, scaled orthography, the
+scale from the prior) at azimuths 20, 110 and 200 degrees, 3 m and 10 m away (the focal length
+in proportion), 1 px: the length error and the MPJPE after the rotation or mirror that best
+aligns the answer (the factorization cannot tell a figure from its mirror image).
 `--quick`: one person of each sex, 10 frames, one azimuth.
 """
 
@@ -26,6 +30,7 @@ import results
 from common import goal, machine, print_goals, start_run
 
 AZIMUTHS = (0.0, 40.0, 80.0, 120.0)
+VIEWS = (20.0, 110.0, 200.0)  # the three cameras of unknown placement
 FOCAL, DISTANCE, HEIGHT = 1000.0, 3.0, 1.2
 
 
@@ -74,6 +79,35 @@ def figures(lifted, seq, lengths, root: int) -> tuple[float, float, float]:
     return float(rel), float(mpjpe), float(aligned)
 
 
+def uncalibrated(db, tree, bodies, frames: int, distance: float, prior):
+    """(length error %, MPJPE mm after a rotation or mirror about the centroid) of
+    `lift_views_uncalibrated` over every body's walk and reach seen by three cameras
+    `distance` m away (focal length in proportion: the body fills the same pixels), 1 px."""
+    from diffbody.images import lift_views_uncalibrated
+
+    focal = FOCAL * distance / DISTANCE
+    rel, mpjpe = [], []
+    for i, body in enumerate(bodies):
+        rest = np.asarray(db.walking_motion(body, tree, 1))[0]
+        L = np.linalg.norm(rest[list(tree.part_end)] - rest[list(tree.part_start)], axis=-1)
+        for j, motion in enumerate((db.walking_motion, db.reaching_motion)):
+            world = np.asarray(motion(body, tree, frames))
+            centre = world[:, tree.root].mean(0)
+            cams = [
+                db.camera_around([centre[0], centre[1], 1.0], distance, az, HEIGHT, focal)
+                for az in VIEWS
+            ]
+            uv = np.stack([np.asarray(db.project(db.to_camera(c, world), c.focal)) for c in cams])
+            uv += np.random.default_rng(10 * i + j).normal(size=uv.shape)
+            out = lift_views_uncalibrated(tree, uv, prior)
+            rel.append(np.abs(np.asarray(out.lengths) / L - 1).mean() * 100)
+            X = np.asarray(out.joints).reshape(-1, 3)
+            Y = world.reshape(-1, 3) - world.reshape(-1, 3).mean(0)
+            U, _, Vt = np.linalg.svd(X.T @ Y)  # the rotation or mirror that best aligns
+            mpjpe.append(np.linalg.norm(X @ U @ Vt - Y, axis=-1).mean() * 1e3)
+    return float(np.mean(rel)), float(np.mean(mpjpe))
+
+
 def from_true_reflections(tree, seq, options):
     """`refine` from formula (1) over every frame with the true reflections."""
     import diffbody as db
@@ -114,9 +148,10 @@ def main() -> None:
         ["people, one camera, 1 px", "prior", "length error", "MPJPE", "MPJPE, scale aligned"],
         "llrrr",
     )
-    goals = []
+    goals, bodies = [], {}
     for sex in ("male", "female"):
-        seq, lengths = sequences(db, tree, people(db, sex, n), frames, azimuths, dtype)
+        bodies[sex] = people(db, sex, n)
+        seq, lengths = sequences(db, tree, bodies[sex], frames, azimuths, dtype)
         anchor = np.asarray(true_reflections(tree, seq.joints))[:, 0]
         what = f"{n} held-out {sex}, {frames} frames, {len(seq.uv)} sequences"
         for label, options in (
@@ -169,6 +204,26 @@ def main() -> None:
                 f"{easier[1]:.1f} mm",
                 f"{easier[2]:.1f} mm",
             )
+    views = run.table(
+        "uncalibrated",
+        [
+            "people, three cameras of unknown placement, 1 px",
+            "distance",
+            "length error",
+            "MPJPE (rotation or mirror aligned)",
+        ],
+        "lrrr",
+    )
+    for sex in ("male", "female"):
+        for distance in (DISTANCE, 10.0):
+            prior = length_prior(tree, sex)
+            rel, mpjpe = uncalibrated(db, tree, bodies[sex], frames, distance, prior)
+            what = f"{n} held-out {sex}, {frames} frames"
+            print(
+                f"  {what}, 3 uncalibrated cameras {distance:g} m away: lengths {rel:.2f} %, "
+                f"MPJPE {mpjpe:.1f} mm"
+            )
+            views.add(what, f"{distance:g} m", f"{rel:.2f} %", f"{mpjpe:.1f} mm")
     print_goals(goals, "goals")
     run.add_goals(goals)
     run.write(results.out_dir(args.out, args.quick))

@@ -1,8 +1,14 @@
 """Image sequences (Webb, "Static Analysis of Moving Jointed Objects"): the observed joint
 tree, the pinhole camera, Webb's lengths from 2D joints, reflections chosen by continuity,
-the joint refinement, the population prior on part lengths, several calibrated cameras,
+the joint refinement, the population prior on part lengths, several cameras (calibrated or not),
 synthetic motions and the pictures of a sequence."""
 
+from ._affine_views import (
+    AffineLifting as AffineLifting,
+)
+from ._affine_views import (
+    lift_views_uncalibrated as lift_views_uncalibrated,
+)
 from ._joint_centres import (
     joint_centres_from_markers as joint_centres_from_markers,
 )
