@@ -20,11 +20,17 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._solver import least_squares_solver, solve
+from .._statuses import FitStatus
 from ._joint_tree import JointTree
 from ._length_prior import LengthPrior
 from ._lifting import LiftOptions, check_options
+
+# The points' spread (in the first view's px) may exceed the first view's image spread by at
+# most this factor: a body's depth is not five times its width in any view.
+STRETCH = 5.0
 
 
 class AffineLifting(eqx.Module):
@@ -34,6 +40,7 @@ class AffineLifting(eqx.Module):
     joints: Float[Array, "*b n_frames n_obs 3"]  # m, about their centroid (a rotation, a mirror)
     view_scales: Float[Array, "*b V"]  # px per m, each view's
     residual_rms: Float[Array, "*b"]  # px: the image points against the rank-3 fit
+    status: Int[Array, "*b"]  # the metric upgrade's FitStatus; FAILED: stretched (`STRETCH`)
 
 
 def _pairs(a: Array, b: Array) -> Array:
@@ -52,9 +59,10 @@ def _pairs(a: Array, b: Array) -> Array:
     )
 
 
-def factorize(uv: Float[Array, "V T J 2"]) -> tuple[Array, Array, Array]:
+def factorize(uv: Float[Array, "V T J 2"]) -> tuple[Array, Array, Array, Array]:
     """(points (T, J, 3) in the first view's px, about their centroid, each view's scale
-    relative to the first's (V,), the image points' RMS off the rank-3 fit (px))."""
+    relative to the first's (V,), the image points' RMS off the rank-3 fit (px), the
+    metric fit's `FitStatus`)."""
     V, T, J, _ = uv.shape
     W = jnp.moveaxis(uv, -1, 1).reshape(2 * V, T * J)
     W = W - jnp.mean(W, axis=1, keepdims=True)
@@ -66,19 +74,36 @@ def factorize(uv: Float[Array, "V T J 2"]) -> tuple[Array, Array, Array]:
     rhs = jnp.zeros(G.shape[0], uv.dtype).at[-1].set(1.0)
     q = jnp.linalg.lstsq(G, rhs)[0]
     Q = jnp.stack([q[jnp.asarray(i)] for i in ([0, 1, 2], [1, 3, 4], [2, 4, 5])])
+    # Where the views are not quite orthographic (a limb reaching toward a camera 3 m
+    # away), the linear solution can be indefinite: A itself (Q = A A^T, definite by
+    # construction) is then fitted to each view's constraints as ratios, from the linear
+    # solution made definite.
     w, vec = jnp.linalg.eigh(Q)
-    w = jnp.maximum(w, 1e-9 * jnp.max(w))  # noise can leave Q just short of definite
-    A = vec * jnp.sqrt(w)
+    A0 = vec * jnp.sqrt(jnp.maximum(w, 1e-6 * jnp.max(w)))
+    fit = solve(_metric_rows, least_squares_solver(1e-10), A0, (a, b), 100)
+    A = fit.value
     X = jnp.linalg.solve(A, S).T.reshape(T, J, 3)
     rows = M @ A
     scales = jnp.linalg.norm(rows[0::2], axis=-1)
     off = W - M @ S
-    return X, scales, jnp.sqrt(jnp.mean(off**2) * 2)
+    # Far from orthographic, the constraints can be met by an A near singular: the points
+    # then stretch along one axis far beyond what any view shows. That is a failure.
+    stretched = jnp.max(jnp.std(X.reshape(-1, 3), 0)) > STRETCH * jnp.max(jnp.std(W[:2], 1))
+    status = jnp.where(stretched, FitStatus.FAILED, fit.status).astype(jnp.int32)
+    return X, scales, jnp.sqrt(jnp.mean(off**2) * 2), status
+
+
+def _metric_rows(A: Array, rows: tuple[Array, Array]) -> Array:
+    """Each view's rows a, b (V, 3) made orthogonal and of equal length by A, as ratios
+    (scale-free, so that every view counts alike), and the first view's of unit length."""
+    a, b = rows[0] @ A, rows[1] @ A
+    aa, bb, ab = (jnp.sum(x * y, -1) for x, y in ((a, a), (b, b), (a, b)))
+    return jnp.concatenate([(aa - bb) / (aa + bb), 2 * ab / (aa + bb), aa[:1] - 1.0])
 
 
 def affine_kernel(tree: JointTree, uv: Float[Array, "V T J 2"], prior: LengthPrior):
     """`lift_views_uncalibrated` on one sequence (no input checks)."""
-    X, scales, rms = factorize(uv)
+    X, scales, rms, status = factorize(uv)
     s, e = np.asarray(tree.part_start), np.asarray(tree.part_end)
     L = jnp.median(jnp.linalg.norm(X[:, e] - X[:, s], axis=-1), axis=0)  # px of view 0
     groups = np.asarray(tree.length_groups(True))
@@ -86,7 +111,7 @@ def affine_kernel(tree: JointTree, uv: Float[Array, "V T J 2"], prior: LengthPri
     w1 = prior.whiten @ jnp.ones(len(first), uv.dtype)
     r = prior.whiten @ (prior.mean - jnp.log(L[first]))
     c = jnp.exp(w1 @ r / (w1 @ w1))  # m per px of view 0
-    return AffineLifting(c * L, c * X, scales / c, rms)
+    return AffineLifting(c * L, c * X, scales / c, rms, status)
 
 
 @eqx.filter_jit
@@ -115,8 +140,10 @@ def lift_views_uncalibrated(
     Returns:
         `AffineLifting`: lengths (m), joints (m, about their centroid, in a frame of the
         first view's image axes and depth, up to a mirror image), each view's scale (px
-        per m) and the image points' RMS off the rank-3 fit (px; large where the views do
-        not see one rigid motion).
+        per m), the image points' RMS off the rank-3 fit (px; large where the views do
+        not see one rigid motion) and the metric upgrade's `FitStatus` (FAILED where the
+        views are too far from orthographic: the points stretch along one axis; then the
+        figures mean nothing).
     """
     uv = np.asarray(uv, dtype=float)
     if uv.ndim < 4 or uv.shape[-1] != 2 or uv.shape[-2] != tree.n_joints or uv.shape[-4] < 2:

@@ -100,3 +100,12 @@ def test_derivatives(tree, seen):
         h = 1e-4
         fd = (np.asarray(f(uv + h * d)) - np.asarray(f(uv - h * d))) / (2 * h)
         np.testing.assert_allclose(np.tensordot(Jf, d, axes=4), fd, rtol=1e-5, atol=1e-9)
+
+
+def test_views_that_cannot_fix_the_depth_fail(tree, seen):
+    """Three views from one direction (the same rotation, 1 px apart): nothing pins the
+    depth, and the answer says FAILED rather than a stretched figure."""
+    _, uv, _ = seen
+    same = np.stack([uv[0]] * 3) + np.random.default_rng(5).normal(size=(3,) + uv.shape[1:])
+    out = lift_views_uncalibrated(tree, same, length_prior(tree, "male"))
+    assert int(out.status) == db.FitStatus.FAILED
