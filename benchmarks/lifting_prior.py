@@ -51,20 +51,26 @@ def people(db, sex: str, n: int):
     return [scaled.body(i) for i in range(n)]
 
 
-def sequences(db, tree, bodies, frames: int, azimuths, dtype):
-    """Every body's walk and reach from every azimuth: (image sequences, true lengths)."""
-    seqs, lengths = [], []
+def motions(db, tree, bodies, frames: int):
+    """(body i, motion j, the body's part lengths (P,), its joints (T, J, 3) walking or
+    reaching, their reference joint's mean) for every body and motion."""
     for i, body in enumerate(bodies):
         rest = np.asarray(db.walking_motion(body, tree, 1))[0]
         L = np.linalg.norm(rest[list(tree.part_end)] - rest[list(tree.part_start)], axis=-1)
         for j, motion in enumerate((db.walking_motion, db.reaching_motion)):
             world = np.asarray(motion(body, tree, frames))
-            centre = world[:, tree.root].mean(0)
-            for k, az in enumerate(azimuths):
-                cam = db.camera_around([centre[0], centre[1], 1.0], DISTANCE, az, HEIGHT, FOCAL)
-                key = jax.random.PRNGKey(100 * i + 10 * j + k)
-                seqs.append(db.image_sequence(tree, cam, jnp.asarray(world), 1.0, key))
-                lengths.append(L)
+            yield i, j, L, world, world[:, tree.root].mean(0)
+
+
+def sequences(db, tree, bodies, frames: int, azimuths, dtype):
+    """Every body's walk and reach from every azimuth: (image sequences, true lengths)."""
+    seqs, lengths = [], []
+    for i, j, L, world, centre in motions(db, tree, bodies, frames):
+        for k, az in enumerate(azimuths):
+            cam = db.camera_around([centre[0], centre[1], 1.0], DISTANCE, az, HEIGHT, FOCAL)
+            key = jax.random.PRNGKey(100 * i + 10 * j + k)
+            seqs.append(db.image_sequence(tree, cam, jnp.asarray(world), 1.0, key))
+            lengths.append(L)
     batch = jax.tree.map(lambda *x: jnp.stack(x).astype(dtype), *seqs)
     return batch, np.asarray(lengths)
 
@@ -88,27 +94,22 @@ def uncalibrated(db, tree, bodies, frames: int, distance: float, prior):
 
     focal = FOCAL * distance / DISTANCE
     rel, mpjpe, failed = [], [], 0
-    for i, body in enumerate(bodies):
-        rest = np.asarray(db.walking_motion(body, tree, 1))[0]
-        L = np.linalg.norm(rest[list(tree.part_end)] - rest[list(tree.part_start)], axis=-1)
-        for j, motion in enumerate((db.walking_motion, db.reaching_motion)):
-            world = np.asarray(motion(body, tree, frames))
-            centre = world[:, tree.root].mean(0)
-            cams = [
-                db.camera_around([centre[0], centre[1], 1.0], distance, az, HEIGHT, focal)
-                for az in VIEWS
-            ]
-            uv = np.stack([np.asarray(db.project(db.to_camera(c, world), c.focal)) for c in cams])
-            uv += np.random.default_rng(10 * i + j).normal(size=uv.shape)
-            out = lift_views_uncalibrated(tree, uv, prior)
-            if int(out.status) == db.FitStatus.FAILED:  # the figures mean nothing: counted
-                failed += 1
-                continue
-            rel.append(np.abs(np.asarray(out.lengths) / L - 1).mean() * 100)
-            X = np.asarray(out.joints).reshape(-1, 3)
-            Y = world.reshape(-1, 3) - world.reshape(-1, 3).mean(0)
-            U, _, Vt = np.linalg.svd(X.T @ Y)  # the rotation or mirror that best aligns
-            mpjpe.append(np.linalg.norm(X @ U @ Vt - Y, axis=-1).mean() * 1e3)
+    for i, j, L, world, centre in motions(db, tree, bodies, frames):
+        cams = [
+            db.camera_around([centre[0], centre[1], 1.0], distance, az, HEIGHT, focal)
+            for az in VIEWS
+        ]
+        uv = np.stack([np.asarray(db.project(db.to_camera(c, world), c.focal)) for c in cams])
+        uv += np.random.default_rng(10 * i + j).normal(size=uv.shape)
+        out = lift_views_uncalibrated(tree, uv, prior)
+        if int(out.status) == db.FitStatus.FAILED:  # the figures mean nothing: counted
+            failed += 1
+            continue
+        rel.append(np.abs(np.asarray(out.lengths) / L - 1).mean() * 100)
+        X = np.asarray(out.joints).reshape(-1, 3)
+        Y = world.reshape(-1, 3) - world.reshape(-1, 3).mean(0)
+        U, _, Vt = np.linalg.svd(X.T @ Y)  # the rotation or mirror that best aligns
+        mpjpe.append(np.linalg.norm(X @ U @ Vt - Y, axis=-1).mean() * 1e3)
     return float(np.mean(rel)), float(np.mean(mpjpe)), failed, 2 * len(bodies)
 
 

@@ -131,7 +131,7 @@ class _Problem(eqx.Module):
     e2: Array
 
 
-def _joints(tree: JointTree, groups, cameras: Pinhole, y: FrameUnknowns, pb: _Problem):
+def _joints(tree: JointTree, groups, y: FrameUnknowns, pb: _Problem):
     """(joints (T, J, 3) world, directions (T, P, 3), lengths (P,)) at unknowns y."""
     lengths = jnp.exp(y.border[np.asarray(groups)])
     ab = y.frames[:, 2:]
@@ -158,7 +158,7 @@ def reprojection(cameras: Pinhole, pos: Array, uv: Array) -> Array:
 
 def _residuals(y: FrameUnknowns, args) -> FrameResiduals:
     tree, options, groups, cameras, pb = args
-    pos, d, lengths = _joints(tree, groups, cameras, y, pb)
+    pos, d, lengths = _joints(tree, groups, y, pb)
     e = reprojection(cameras, pos, pb.uv) / options.pixel_sigma  # (V, T, J, 2)
     e = jnp.moveaxis(cauchy(e, options.robust), 0, 1)
     frame = [e.reshape(e.shape[0], -1), y.frames[:, 1, 1:]]  # the pad unknown held at zero
@@ -201,7 +201,7 @@ def views_kernel(
         options.tol, linear_solver=BandedSchurCholesky(), norm=optx.rms_norm
     )
     y, status, steps = solve(_residuals, solver, y0, args, options.max_steps)
-    pos, _, lengths = _joints(tree, groups, cameras, y, pb)
+    pos, _, lengths = _joints(tree, groups, y, pb)
     err = reprojection(cameras, pos, uv)
     n_seen = jnp.sum(jnp.all(jnp.isfinite(uv), -1))
     return ViewsLifting(
