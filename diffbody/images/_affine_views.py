@@ -25,7 +25,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from .._solver import least_squares_solver, solve
 from .._statuses import FitStatus
 from ._joint_tree import JointTree
-from ._length_prior import LengthPrior
+from ._length_prior import LengthPrior, group_firsts
 from ._lifting import LiftOptions, check_options
 
 # The points' spread (in the first view's px) may exceed the first view's image spread by at
@@ -106,8 +106,7 @@ def affine_kernel(tree: JointTree, uv: Float[Array, "V T J 2"], prior: LengthPri
     X, scales, rms, status = factorize(uv)
     s, e = np.asarray(tree.part_start), np.asarray(tree.part_end)
     L = jnp.median(jnp.linalg.norm(X[:, e] - X[:, s], axis=-1), axis=0)  # px of view 0
-    groups = np.asarray(tree.length_groups(True))
-    first = np.asarray([np.flatnonzero(groups == g)[0] for g in range(groups.max() + 1)])
+    first = group_firsts(tree)
     w1 = prior.whiten @ jnp.ones(len(first), uv.dtype)
     r = prior.whiten @ (prior.mean - jnp.log(L[first]))
     c = jnp.exp(w1 @ r / (w1 @ w1))  # m per px of view 0

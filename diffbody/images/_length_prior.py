@@ -39,7 +39,8 @@ def population_lengths(tree: JointTree, sex: str, rows: np.ndarray | None = None
     check_sex(sex)
     table = [r for r in data_rows(SCALES_FILE) if r["sex"] == sex]
     if rows is not None:
-        table = [r for r in table if int(r["row"]) in set(np.asarray(rows).tolist())]
+        wanted = set(np.asarray(rows).tolist())
+        table = [r for r in table if int(r["row"]) in wanted]
     template = load_body(variant=f"{sex}50")
     groups = [k for k in table[0] if k not in ("sex", "row")]
     axial = np.asarray([[float(r[g]) for g in groups] for r in table])
@@ -55,15 +56,20 @@ def population_lengths(tree: JointTree, sex: str, rows: np.ndarray | None = None
     return np.asarray(jax.jit(jax.vmap(lengths))(jax.device_put(axial)))
 
 
+def group_firsts(tree: JointTree) -> np.ndarray:
+    """(G,) the first part of each length group (`JointTree.length_groups(True)`): on a
+    scaled body a group's parts have one length."""
+    groups = np.asarray(tree.length_groups(True))
+    return np.asarray([np.flatnonzero(groups == g)[0] for g in range(groups.max() + 1)])
+
+
 def length_prior(tree: JointTree, sex: str = "male", rows: np.ndarray | None = None) -> LengthPrior:
     """The prior of the tree's log length groups for `sex` (module docstring); `rows`: only
     these subjects (0-based rows of the survey's file; the even ones are shipped). Every
     joint of the tree must be a joint or a feature of the default body (KeyError naming it)."""
-    groups = np.asarray(tree.length_groups(True))
-    log_len = np.log(population_lengths(tree, sex, rows))
-    n_groups = groups.max() + 1
-    first = np.asarray([np.flatnonzero(groups == g)[0] for g in range(n_groups)])
-    x = log_len[:, first]  # a group's parts have one length on a scaled body
+    first = group_firsts(tree)
+    n_groups = len(first)
+    x = np.log(population_lengths(tree, sex, rows))[:, first]
     if len(x) <= n_groups:
         raise ValueError(
             f"length_prior: {len(x)} subjects for {n_groups} length groups; give more rows"
