@@ -76,14 +76,6 @@ def searched(template: Body, lay: FitLayout, init: Pose, cloud: Cloud, tables) -
     return jax.vmap(lambda x: rest.problem.pose(x, init))(xs)
 
 
-def fit_one(template, lay, init, cloud, align, tables) -> Fitted:
-    """`fit_cloud`; when `tables` (static) is not None, from the searched starts and `init`
-    moved onto the cloud (`fit_from_starts`)."""
-    if tables is None:
-        return fit_cloud(template, lay, init, cloud, jnp.asarray(align))
-    return _from_starts(template, lay, searched(template, lay, init, cloud, tables), init, cloud)
-
-
 def _from_starts(template, lay, found: Pose, init: Pose, cloud: Cloud) -> Fitted:
     """`fit_from_starts` of the searched candidates and `init` moved onto the cloud (the
     search's chamfer cost can prefer a start that anneals worse than the plain one on a
@@ -98,9 +90,11 @@ def _from_starts(template, lay, found: Pose, init: Pose, cloud: Cloud) -> Fitted
 
 
 def fit_many(template, lay, init, clouds, align, tables) -> Fitted:
-    """`fit_one` of a chunk of clouds: the searches one after the other (`lax.map`: a vmap
-    of the search's vmapped candidates trips XLA's dot simplifier, and one search already
-    fills the cores), the fits vmapped (each from its starts, as `fit_one`)."""
+    """A chunk of clouds' fits: `fit_cloud` of each from `init`, or, when `tables` (static)
+    is not None, from the searched starts and `init` moved onto the cloud
+    (`fit_from_starts`). The searches run one after the other (`lax.map`: a vmap of the
+    search's vmapped candidates trips XLA's dot simplifier, and one search already fills
+    the cores), the fits vmapped."""
     if tables is None:
         fit = eqx.filter_vmap(fit_cloud, in_axes=(None, None, None, 0, None))
         return fit(template, lay, init, clouds, jnp.asarray(align))
@@ -108,8 +102,8 @@ def fit_many(template, lay, init, clouds, align, tables) -> Fitted:
     return jax.vmap(lambda f, c: _from_starts(template, lay, f, init, c))(found, clouds)
 
 
-# One compiled fit per (body structure, layout, cloud size, start); the batch one per chunk.
-_fit_jit = compiled(fit_one)
+# One compiled fit per (body structure, layout, cloud size, start, chunk): a single cloud is
+# a chunk of one, so `fit_spheres` and a batch of chunk_size=1 share their program.
 _fit_many_jit = compiled(fit_many)
 
 
@@ -137,15 +131,6 @@ def _prepare(body: Body, centers, radii, correspondences, fit, init: Pose | None
     search = init is None and match is None and "pose" in fit
     tables = search_tables(body, layout) if search else None
     return without_names(body), layout, start, measured, match, tables
-
-
-def _cloud(dtype, measured: np.ndarray, match: np.ndarray | None) -> Cloud:
-    none = np.full(measured.shape[:-1], -1, np.int32)
-    return Cloud(
-        measured=jnp.asarray(measured, dtype),
-        match=jnp.asarray(none if match is None else match),
-        known=match is not None,
-    )
 
 
 def _result(body: Body, template: Body, out: Fitted) -> SphereFit:
@@ -196,12 +181,11 @@ def fit_spheres(
     the scale factors, each measured sphere's residual distance and inlier flag, whether
     the fit landed (`LANDED_INLIERS`) and a status (CONVERGED only when landed).
     """
-    template, lay, start, measured, match, tables = _prepare(
-        body, centers, radii, correspondences, fit, init, batch=False
-    )
-    cloud = _cloud(template.lengths.dtype, measured, match)
-    out = _fit_jit(template, lay, start, cloud, init is None, tables)
-    return _result(body, template, out)
+    args = _prepare(body, centers, radii, correspondences, fit, init, batch=False)
+    template, lay, start, measured, match, tables = args
+    match = None if match is None else match[None]
+    one = _fit_chunks(body, (template, lay, start, measured[None], match, tables), init, 1)
+    return one.item(0)
 
 
 def fit_spheres_batch(
@@ -231,17 +215,8 @@ def fit_spheres_batch(
     """
     if not (isinstance(chunk_size, int) and chunk_size >= 1):
         raise ValueError(f"chunk_size: expected an integer >= 1, got {chunk_size!r}")
-    template, lay, start, measured, match, tables = _prepare(
-        body, centers, radii, correspondences, fit, init, batch=True
-    )
-    dtype = template.lengths.dtype
-    none = np.full(measured.shape[:-1], -1, np.int32)
-    known = match is not None
-
-    def run(measured, match):
-        cloud = Cloud(measured=measured.astype(dtype), match=match, known=known)
-        return _fit_many_jit(template, lay, start, cloud, init is None, tables)
-
+    prepared = _prepare(body, centers, radii, correspondences, fit, init, batch=True)
+    measured = prepared[3]
     chunk = chunk_rows(chunk_size, measured.shape[0])
     store = None
     if out is not None:
@@ -251,6 +226,21 @@ def fit_spheres_batch(
             "init": "(none)" if init is None else tree_hash(init)
         }
         store = ChunkStore.open(out, settings | {"float": float_name()}, chunk, resume)
+    return _fit_chunks(body, prepared, init, chunk, progress, store)
+
+
+def _fit_chunks(body, prepared, init, chunk: int, progress=False, store=None) -> SphereFit:
+    """`_prepare`'s clouds (b, m, 4) fitted in chunks of `chunk` rows (`map_chunks`), the
+    result's arrays NumPy."""
+    template, lay, start, measured, match, tables = prepared
+    dtype = template.lengths.dtype
+    none = np.full(measured.shape[:-1], -1, np.int32)
+    known = match is not None
+
+    def run(measured, match):
+        cloud = Cloud(measured=measured.astype(dtype), match=match, known=known)
+        return _fit_many_jit(template, lay, start, cloud, init is None, tables)
+
     fitted = map_chunks(
         run,
         (measured, none if match is None else match),

@@ -63,8 +63,9 @@ def three_clouds(male50):
 
 @pytest.fixture(scope="module")
 def fitted_chunk(male50):
-    """One batch, one compiled program, of `three_clouds`: (fit, true lengths, what the
-    compiled fit handed back for the chunk)."""
+    """`three_clouds` fitted one at a time, on the program `fit_spheres` and the `fit`
+    command compile (a chunk of one): (fit, true lengths, what the compiled fit handed
+    back, the three chunks stacked as one chunk of three)."""
     import diffbody.clouds._cloud_fit as sphere_fit
 
     centers, radii, lengths = three_clouds(male50)
@@ -78,10 +79,11 @@ def fitted_chunk(male50):
 
     sphere_fit._fit_many_jit = keep
     try:
-        fit = db.fit_spheres_batch(male50, centers, radii, chunk_size=3, progress=False)
+        fit = db.fit_spheres_batch(male50, centers, radii, chunk_size=1, progress=False)
     finally:
         sphere_fit._fit_many_jit = run
-    (chunk,) = kept
+    assert len(kept) == 3
+    chunk = jax.tree.map(lambda *rows: np.concatenate([np.asarray(r) for r in rows]), *kept)
     return fit, lengths, chunk
 
 
@@ -208,8 +210,8 @@ def test_a_batch_kept_in_a_folder_resumes_after_an_interrupt(
     compiled size; an interrupt in the second keeps the first (`Interrupted` says so);
     resume=True reads it and fits the second: every cloud as the fixture's one call fits it.
     Other clouds are refused by name. (The compiled fit hands back what it handed the
-    fixture for these clouds: this is the folder's test, and a fit of two chunks of the
-    nine-start fit would take a minute.)"""
+    fixture for these clouds, stacked: this is the folder's test, and a fit of two chunks of
+    the nine-start fit would take a minute.)"""
     import diffbody.clouds._cloud_fit as sphere_fit
     from diffbody.runs._streaming import Interrupted
 
