@@ -124,24 +124,36 @@ def fk_male50(male50):
     return jax.jit(lambda pose: db.forward(male50, pose))
 
 
-# The files that take longest (minutes on 2 cores, most of it compiling), longest first:
-# scheduled first, so that the two workers finish together instead of one waiting on a long
-# file collected last. The notebooks and the README lead the slow tier.
+# The files that take longest (measured: tens of seconds to minutes on 2 cores, most of it
+# compiling), longest first: scheduled first, so that the two workers finish together
+# instead of one waiting on a long file collected last. The notebooks and the README lead
+# the slow tier.
 LONGEST = (
     "test_notebooks.py",
     "test_readme.py",
-    "test_constraints.py",
     "test_mocap.py",
     "test_cloud_fit.py",
-    "test_cli_mocap.py",
-    "test_posture.py",
-    "test_cli_reach.py",
+    "test_constraints.py",
     "test_reach.py",
-    "test_batch.py",
+    # After test_cloud_fit.py, whose `fit` command compiles the program it fits on (read back
+    # from the persistent cache, not compiled twice at once).
+    "test_cloud_start.py",
+    "test_reach_programs.py",
+    "test_tree.py",
+    "test_cli_mocap_trials.py",
     "test_points.py",
-    "test_spine.py",
-    "test_cli_webb.py",
+    "test_cli_mocap.py",
+    "test_lifting.py",
     "test_kinematics.py",
+    "test_export.py",
+    "test_anthropometry.py",
+    "test_programs.py",
+    "test_webb.py",
+    "test_spine.py",
+    "test_posture.py",
+    "test_cli_batch_stream.py",
+    "test_views.py",
+    "test_joint_angles.py",
 )
 
 

@@ -196,20 +196,22 @@ def test_a_frames_velocity_rows_are_its_step_from_the_previous_frame(static_fit)
     weight 0 the other rows are unchanged, so the term off is the fit without it."""
     body = motion_limits(static_fit.body)
     lay = mocap_layout(body, static_fit.markerset)
-    problem = make_problem(body, lay.pose, static_fit.pose)
     rng = np.random.default_rng(5)
-    x = problem.x0 + 0.1 * rng.standard_normal(lay.pose.n_free)
-    before = problem.x0 + 0.1 * rng.standard_normal(lay.pose.n_free)
-    target = np.asarray(model_markers(problem, lay, static_fit.markerset.offsets, problem.x0))
-    sqrt_w = np.full(len(target), 100.0)
+    dx, d_before = 0.1 * rng.standard_normal((2, lay.pose.n_free))
 
+    # One program (op by op, the problem and the walk are hundreds of programs).
+    @eqx.filter_jit
     def rows(weight):
+        problem = make_problem(body, lay.pose, static_fit.pose)
+        x, before = problem.x0 + dx, problem.x0 + d_before
+        target = model_markers(problem, lay, static_fit.markerset.offsets, problem.x0)
+        sqrt_w = jnp.full(len(target), 100.0)
         args = (problem, lay, static_fit.markerset.offsets, target, sqrt_w, problem.x0, 0.03)
-        return np.asarray(_frame_residuals(x, (*args, before, weight)))
+        return _frame_residuals(x, (*args, before, weight)), x - before
 
-    on, off = rows(VELOCITY), rows(0.0)
+    (on, step), (off, _) = (jax.device_get(rows(jnp.asarray(w))) for w in (VELOCITY, 0.0))
     n = lay.pose.n_free
-    np.testing.assert_allclose(on[-n:], VELOCITY * (x - before), rtol=1e-12)
+    np.testing.assert_allclose(on[-n:], VELOCITY * step, rtol=1e-12)
     np.testing.assert_array_equal(off[-n:], 0.0)
     np.testing.assert_array_equal(on[:-n], off[:-n])
 
