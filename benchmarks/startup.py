@@ -14,7 +14,10 @@ jaxpr to MLIR module conversion" lines the seconds spent tracing and lowering.
 1. The README's command, `diffbody reach --effector left_hand.palm --target 0.35 0.3 1.1 --out
    reach.pose.json --png reach.png`, in a temporary folder: the wall time of the process; and
    once more cold with the solve programs compiled with XLA's defaults
-   (DIFFBODY_XLA_DEFAULTS=1), which shows what diffbody's compile options save.
+   (DIFFBODY_XLA_DEFAULTS=1), which shows what diffbody's compile options save; and once
+   with a new cache that holds only the cached run's exported programs (`diffbody-exported`),
+   which shows what shipping them with the package would save: XLA compiles as cold, nothing
+   is traced or lowered.
 2. `solve_reach` on the whole body, standing (the default), `db.load_body()`, one palm target
    0.9 m in front of the left shoulder's rest position and 10 cm below it (docs/guide.md, the
    reach ladder: the hips and the spine join the arm): the first call (import and
@@ -40,6 +43,7 @@ import importlib.util
 import json
 import os
 import re
+import shutil
 import statistics
 import subprocess
 import sys
@@ -58,6 +62,7 @@ GOAL_CLI_COLD_S, GOAL_CLI_CACHED_S = 4.0, 1.5  # the README command, wall
 GOAL_FIRST_CALL_COLD_S, GOAL_FIRST_CALL_CACHED_S = 5.0, 1.5  # whole body, standing
 GOAL_WARM_MS = 2.0
 DEFAULTS_ROW = "diffbody reach, README command, XLA's defaults (DIFFBODY_XLA_DEFAULTS=1) (s)"
+EXPORTED_ROW = "diffbody reach, README command, the exported programs alone kept (s)"
 
 # m: the left shoulder at rest, (0, 0.193, 1.388), + (0.9, 0, -0.1): the guide's reach ladder
 REACH_TARGET = (0.9, 0.193, 1.288)
@@ -233,6 +238,12 @@ def main() -> None:
                 add("diffbody reach, README command (s)", state, wall_s, phases["start"])
                 if rep == 0 and state == "cold":
                     first_cold["diffbody reach"] = phases["start"]
+            # What shipping the exported programs would give: a new cache holding them alone.
+            with tempfile.TemporaryDirectory() as shipped:
+                exported = "diffbody-exported"
+                shutil.copytree(Path(cache) / exported, Path(shipped) / exported)
+                wall_s, _, phases = fresh(reach_command(), shipped, out_dir)
+                add(EXPORTED_ROW, "cold", wall_s, phases["start"])
         # The same, its programs compiled with XLA's defaults (diffbody._programs.CPU_OPTIONS
         # off): what the per-program options save.
         with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out_dir:

@@ -21,6 +21,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._body import Body
 from .._chain import on_paths
+from .._programs import compiled
 
 # Scale groups: segments scaled together. Left and right share a factor (ANSUR II measures
 # one side), the five lumbar and the twelve thoracic vertebrae each share one.
@@ -79,7 +80,15 @@ def scale_body(
     The enclosures stay enclosures: the centre's z scales axially and the radius by
     max(axial, radial), which bounds how far any point of the segment moves (they are no
     longer the smallest; `load_body` recomputes the smallest for a saved file).
+
+    One compiled program per body structure (op by op, its dozens of small operations would
+    compile a program each on a first call); inlined under a transformation.
     """
+    return _scale_body_jit(body, axial, radial, total_mass)
+
+
+def _scale_body(body: Body, axial, radial, total_mass) -> Body:
+    """`scale_body`, traced."""
     a = jnp.asarray(axial)
     r = jnp.asarray(radial)
     xyz = jnp.stack([r, r, a], axis=-1)  # (n_seg, 3): X and Y radial, Z axial
@@ -139,7 +148,16 @@ def stand_on_ground(body: Body) -> Body:
 
 def log_scaled(template: Body, log_axial: Array, log_radial: Array) -> Body:
     """The template with the group scale factors exp(log_axial), exp(log_radial) (each
-    `(N_GROUPS,)`): the unknowns of the fits that scale a body by gradient."""
+    `(N_GROUPS,)`): the unknowns of the fits that scale a body by gradient. One compiled
+    program, as `scale_body`."""
+    return _log_scaled_jit(template, log_axial, log_radial)
+
+
+def _log_scaled(template: Body, log_axial: Array, log_radial: Array) -> Body:
     axial = per_segment(template, jnp.exp(log_axial))
     radial = per_segment(template, jnp.exp(log_radial))
-    return scale_body(template, axial, radial)
+    return _scale_body(template, axial, radial, None)
+
+
+_scale_body_jit = compiled(_scale_body)
+_log_scaled_jit = compiled(_log_scaled)

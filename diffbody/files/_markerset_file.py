@@ -18,11 +18,13 @@ from pathlib import Path
 from typing import Any
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from .._body import WHOLE_BODY, Body, rest_geometry, unknown_name_error
+from .._programs import is_traced
 from ._data_files import Where, data_file, read_json
 from ._marker_trial import MarkerFileError
 
@@ -77,10 +79,19 @@ class MarkerSet(eqx.Module):
             names=tuple(self.names[i] for i in idx),
             segments=tuple(self.segments[i] for i in idx),
             kinds=tuple(self.kinds[i] for i in idx),
-            offsets=self.offsets[np.asarray(idx, dtype=int)],
-            tolerances=self.tolerances[np.asarray(idx, dtype=int)],
-            weights=self.weights[np.asarray(idx, dtype=int)],
+            offsets=_rows(self.offsets, idx),
+            tolerances=_rows(self.tolerances, idx),
+            weights=_rows(self.weights, idx),
         )
+
+
+def _rows(a, idx: list[int]):
+    """Rows idx of a: a device array's taken on the host and put back (an index of a device
+    array compiles a small program per shape), a traced one's in the trace."""
+    idx = np.asarray(idx, dtype=int)
+    if isinstance(a, np.ndarray) or is_traced(a):
+        return a[idx]
+    return jax.device_put(np.asarray(a)[idx])
 
 
 # --- loading -------------------------------------------------------------------------------
@@ -129,7 +140,7 @@ def resolve_offset(
 ):
     """A marker's offset (3,) in its segment's cross of axes, standard position (`rest`:
     the standard position's joints and sphere centres, `rest_geometry`)."""
-    R_world_seg = np.asarray(body.R_socket_rest[seg])  # standard position: socket = world
+    R_world_seg = np.asarray(body.R_socket_rest)[seg]  # standard position: socket = world
 
     def direction(field: str, unit: bool) -> np.ndarray:
         bound = None if unit else SHIFT_M
@@ -144,10 +155,11 @@ def resolve_offset(
         joints, _ = rest
         sph = body.feature_sphere[f]
         f_seg = body.sphere_segment[sph]
-        R_f = np.asarray(body.R_socket_rest[f_seg])
-        normal = R_f @ np.asarray(body.feature_directions[f])
-        local = np.asarray(body.sphere_origins[sph]) + float(body.sphere_radii[sph]) * np.asarray(
-            body.feature_directions[f]
+        R_f = np.asarray(body.R_socket_rest)[f_seg]
+        normal = R_f @ np.asarray(body.feature_directions)[f]
+        radius_f = float(np.asarray(body.sphere_radii)[sph])
+        local = (
+            np.asarray(body.sphere_origins)[sph] + radius_f * np.asarray(body.feature_directions)[f]
         )
         p_world = joints[body.proximal_joint[f_seg]] + R_f @ local + radius * normal
         return R_world_seg.T @ (p_world - joints[body.proximal_joint[seg]]) + shift
@@ -160,7 +172,7 @@ def resolve_offset(
             )
         along = where.number(entry, "along", within=(0.0, 1.0))
         d = direction("sphere_surface", unit=True)
-        start = np.array([0.0, 0.0, along * float(body.lengths[seg])])
+        start = np.array([0.0, 0.0, along * float(np.asarray(body.lengths)[seg])])
         origins, radii = _skin_near(body, rest, seg)
         t = _ray_exit(origins, radii, start, d)
         if math.isnan(t):
@@ -182,7 +194,7 @@ def _skin_near(body: Body, rest, seg: int) -> tuple[np.ndarray, np.ndarray]:
     near = {seg, body.parent[seg]} | {i for i, p in enumerate(body.parent) if p == seg}
     sph = np.flatnonzero(np.isin(np.asarray(body.sphere_segment), sorted(near)))
     joints, centers = rest
-    R_world_seg = np.asarray(body.R_socket_rest[seg])
+    R_world_seg = np.asarray(body.R_socket_rest)[seg]
     local = (centers[sph] - joints[body.proximal_joint[seg]]) @ R_world_seg
     return local, np.asarray(body.sphere_radii)[sph]
 

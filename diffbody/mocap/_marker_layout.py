@@ -116,8 +116,8 @@ def rigid_markers(body: Body, paths: list[tuple[int, ...]]) -> tuple[bool, ...]:
     spine = set(body.spine.segment_names) if body.spine is not None else set()
     ranges = np.concatenate(
         [
-            np.asarray(body.swing_hi - body.swing_lo),
-            np.asarray(body.twist_hi - body.twist_lo)[:, None],
+            np.asarray(body.swing_hi) - np.asarray(body.swing_lo),
+            (np.asarray(body.twist_hi) - np.asarray(body.twist_lo))[:, None],
         ],
         axis=1,
     )

@@ -9,11 +9,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from compiles import compiled_names
 
 import diffbody as db
 from diffbody.anthropometry._measurements import geometry
 from diffbody.anthropometry._prior import ansur2_subjects
 from diffbody.anthropometry._scale_to import scaled_body
+from diffbody.anthropometry._scaling import log_scaled, per_segment
 from diffbody.files._data_files import data_file
 
 N = len(db.SCALE_GROUPS)
@@ -374,3 +376,21 @@ def test_population_kept_in_a_folder_resumes_after_an_interrupt(subjects, tmp_pa
     for name in ("log_scales", "masses", "measurements", "reproduced", "converged"):
         np.testing.assert_array_equal(getattr(resumed, name), getattr(whole, name))
     assert len(list(kept.glob("part-*.npz"))) == 3
+
+
+def test_scaling_a_body_is_one_program(male50):
+    """Regression: `scale_body` and `log_scaled` ran op by op, a small program per
+    operation (dozens on a first call, about a second of every fit's start); each is now
+    one compiled program, as a new process would compile it."""
+    a = np.linspace(0.9, 1.1, male50.n_segments)
+    logs = np.linspace(-0.1, 0.1, len(db.SCALE_GROUPS))
+    log_axial, log_radial = jax.device_put(logs), jax.device_put(-logs)
+    db.scale_body(male50, a, a)
+    jax.clear_caches()  # every program of this process gone: a first call again
+    with compiled_names() as names:
+        scaled = db.scale_body(male50, a[::-1].copy(), a)
+        logged = log_scaled(male50, log_axial, log_radial)
+    assert names == ["_scale_body", "_log_scaled"], names
+    np.testing.assert_allclose(scaled.lengths, male50.lengths * a[::-1], rtol=1e-12)
+    axial = per_segment(male50, np.exp(logs))
+    np.testing.assert_allclose(logged.lengths, male50.lengths * axial, rtol=1e-12)

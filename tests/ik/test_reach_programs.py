@@ -1,14 +1,12 @@
 """What a reach compiles: settings that are data share one program (docs/design.md,
 section 6, "Programs")."""
 
-import logging
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from compiles import counted_compiles
+from compiles import compiled_names, counted_compiles
 
 import diffbody as db
 from diffbody import _programs
@@ -57,19 +55,6 @@ def test_a_step_cap_given_as_data_stops_where_a_static_one_does(male50, cap):
     np.testing.assert_allclose(x_data, x_static, rtol=0, atol=1e-6)
 
 
-class _Compiles(logging.Handler):
-    """The names of the programs JAX compiles (or reads back) while installed."""
-
-    def __init__(self):
-        super().__init__()
-        self.names: list[str] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        message = record.getMessage()
-        if message.startswith("Compiling jit("):
-            self.names.append(message[len("Compiling jit(") :].split(")")[0])
-
-
 def test_a_standing_solve_compiles_each_phase_once(male50, monkeypatch):
     """A far reach with the right hand (no other test's effector): the limbs' round and the
     trunk's, each compiled once, although every round after the first starts from the last
@@ -80,17 +65,11 @@ def test_a_standing_solve_compiles_each_phase_once(male50, monkeypatch):
     monkeypatch.setattr(_programs, "_LOADED", {})
     monkeypatch.setattr(_programs, "_SEEN", {})
     db.forward(male50, male50.rest_pose())
-    handler = _Compiles()
-    logger = logging.getLogger("jax")
-    logger.addHandler(handler)
-    try:
-        with jax.log_compiles():
-            out = db.solve_reach(male50, [Target.position("right_hand.palm", (0.85, -0.35, 0.75))])
-    finally:
-        logger.removeHandler(handler)
+    with compiled_names() as names:
+        out = db.solve_reach(male50, [Target.position("right_hand.palm", (0.85, -0.35, 0.75))])
     assert out.pose.spine_target is not None  # the trunk joined
-    assert handler.names.count("attempt_round") == 2, handler.names
-    assert "_forward" not in handler.names, handler.names
+    assert names.count("attempt_round") == 2, names
+    assert "_forward" not in names, names
 
 
 def test_new_effectors_subsets_and_row_counts_compile_nothing(male50):
@@ -129,16 +108,10 @@ def test_new_effectors_subsets_and_row_counts_compile_nothing(male50):
     for out in warm + outs:
         assert int(out.status) == 0, out.residuals
     assert all(out.pose.spine_target is None for out in outs)  # the limbs alone
-    handler = _Compiles()
-    logger = logging.getLogger("jax")
-    logger.addHandler(handler)
-    try:
-        with jax.log_compiles():
-            far = db.solve_reach(male50, [Target.position("left_wrist", (0.3, 0.8, 0.8))])
-    finally:
-        logger.removeHandler(handler)
+    with compiled_names() as names:
+        far = db.solve_reach(male50, [Target.position("left_wrist", (0.3, 0.8, 0.8))])
     assert far.pose.spine_target is not None and int(far.status) == 0
     # Of the solve's programs: the standing round alone (a first export also logs its own
     # tracing and a few tiny conversions).
-    solve = [n for n in handler.names if n in ("attempt_round", "_conclude", "_forward")]
-    assert solve == ["attempt_round"], handler.names
+    solve = [n for n in names if n in ("attempt_round", "_conclude", "_forward")]
+    assert solve == ["attempt_round"], names
