@@ -15,6 +15,7 @@ and piecewise linear, in the scale factors (docs/design.md, section 3).
 """
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -159,5 +160,16 @@ def _log_scaled(template: Body, log_axial: Array, log_radial: Array) -> Body:
     return _scale_body(template, axial, radial, None)
 
 
+def log_scaled_many(template: Body, log_axial: ArrayLike, log_radial: ArrayLike) -> Body:
+    """`log_scaled` of (b, N_GROUPS) factors: the bodies as one with a leading batch axis on
+    every array, in one compiled program."""
+    return _log_scaled_many_jit(template, log_axial, log_radial)
+
+
+def _log_scaled_many(template: Body, log_axial, log_radial) -> Body:
+    return jax.vmap(_log_scaled, in_axes=(None, 0, 0))(template, log_axial, log_radial)
+
+
 _scale_body_jit = compiled(_scale_body)
 _log_scaled_jit = compiled(_log_scaled)
+_log_scaled_many_jit = compiled(_log_scaled_many)

@@ -17,7 +17,7 @@ from .._body import Body, Pose, without_names
 from .._programs import compiled
 from .._solver import FitStatus
 from .._spine import spine_angles
-from ..anthropometry._scaling import log_scaled
+from ..anthropometry._scaling import log_scaled_many
 from ..runs._batches import chunk_rows, map_chunks
 from ..runs._chunk_store import ChunkStore, float_name, input_hash
 from ..runs._header import body_fields
@@ -64,7 +64,10 @@ class SphereFit(eqx.Module):
 
     def item(self, i: int) -> "SphereFit":
         """Cloud i of a batch, as JAX arrays (ready for `forward`, `render`, ...)."""
-        return jax.tree.map(lambda a: jnp.asarray(a[i]) if eqx.is_array(a) else a, self)
+        # A host row is put on the device as it is: `jnp.asarray` compiles a small program
+        # per shape.
+        row = lambda a: jax.device_put(a[i]) if isinstance(a, np.ndarray) else a[i]  # noqa: E731
+        return jax.tree.map(lambda a: row(a) if eqx.is_array(a) else a, self)
 
 
 # --- the fit -------------------------------------------------------------------------------
@@ -134,15 +137,15 @@ def _prepare(body: Body, centers, radii, correspondences, fit, init: Pose | None
 
 
 def _result(body: Body, template: Body, out: Fitted) -> SphereFit:
-    fitted = jax.vmap(log_scaled, in_axes=(None, 0, 0)) if out.log_axial.ndim == 2 else log_scaled
+    """The `SphereFit` of a batch's fits (host arrays)."""
     # Named before scaling: a batch of bodies is no valid argument of Body's constructor.
     name = dict(name=f"{body.name}-fitted", source="diffbody.fit_spheres")
     template = dataclasses.replace(template, **name)
     return SphereFit(
-        body=fitted(template, out.log_axial, out.log_radial),
+        body=log_scaled_many(template, out.log_axial, out.log_radial),
         pose=out.pose,
-        axial=jnp.exp(out.log_axial),
-        radial=jnp.exp(out.log_radial),
+        axial=np.exp(out.log_axial),
+        radial=np.exp(out.log_radial),
         residuals=out.distances,
         inliers=out.distances < INLIER_DISTANCE,
         covered=out.covered,
