@@ -85,7 +85,13 @@ def scale_body(
     One compiled program per body structure (op by op, its dozens of small operations would
     compile a program each on a first call); inlined under a transformation.
     """
-    return _scale_body_jit(body, axial, radial, total_mass)
+    # Arrays, never Python numbers or lists: those would be static, a program per value.
+    axial, radial = _array(axial), _array(radial)
+    return _scale_body_jit(body, axial, radial, None if total_mass is None else _array(total_mass))
+
+
+def _array(x):
+    return x if isinstance(x, (jax.Array, np.ndarray)) else np.asarray(x)
 
 
 def _scale_body(body: Body, axial, radial, total_mass) -> Body:
@@ -151,7 +157,7 @@ def log_scaled(template: Body, log_axial: Array, log_radial: Array) -> Body:
     """The template with the group scale factors exp(log_axial), exp(log_radial) (each
     `(N_GROUPS,)`): the unknowns of the fits that scale a body by gradient. One compiled
     program, as `scale_body`."""
-    return _log_scaled_jit(template, log_axial, log_radial)
+    return _log_scaled_jit(template, _array(log_axial), _array(log_radial))
 
 
 def _log_scaled(template: Body, log_axial: Array, log_radial: Array) -> Body:
@@ -163,7 +169,7 @@ def _log_scaled(template: Body, log_axial: Array, log_radial: Array) -> Body:
 def log_scaled_many(template: Body, log_axial: ArrayLike, log_radial: ArrayLike) -> Body:
     """`log_scaled` of (b, N_GROUPS) factors: the bodies as one with a leading batch axis on
     every array, in one compiled program."""
-    return _log_scaled_many_jit(template, log_axial, log_radial)
+    return _log_scaled_many_jit(template, _array(log_axial), _array(log_radial))
 
 
 def _log_scaled_many(template: Body, log_axial, log_radial) -> Body:
