@@ -22,6 +22,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._body import Body
 from .._chain import on_paths
+from .._device_arrays import device_array
 from .._programs import compiled
 
 # Scale groups: segments scaled together. Left and right share a factor (ANSUR II measures
@@ -91,7 +92,7 @@ def scale_body(
 
 
 def _array(x):
-    return x if isinstance(x, (jax.Array, np.ndarray)) else np.asarray(x)
+    return x if isinstance(x, (jax.Array, np.ndarray)) else device_array(x)
 
 
 def _scale_body(body: Body, axial, radial, total_mass) -> Body:
