@@ -258,27 +258,30 @@ def _cut(result: ReachResult, n: int) -> ReachResult:
 _conclude_jit = compiled(_conclude)
 
 
-def reach_status(reached: Array, valid: Array, beyond: Array, kept: Array | None = None) -> Array:
-    """The `ReachStatus` (int) of one problem from its per-target verdicts and whether each
-    constraint is kept (`kept`, per kind; None or empty: no constraint)."""
-    ok = jnp.all(reached | ~valid)
+def reach_status(reached, valid, beyond, kept=None):
+    """The `ReachStatus` (int) of problems from their per-target verdicts (..., n) and
+    whether each constraint is kept (`kept`, per kind; None or empty: no constraint); over
+    the leading axes, in NumPy for host arrays (no program compiled per batch shape), else
+    in JAX."""
+    xp = np if all(isinstance(a, np.ndarray) for a in (reached, valid, beyond)) else jnp
+    ok = xp.all(reached | ~valid, axis=-1)
     has = kept is not None and kept.shape[-1] > 0
-    held = jnp.all(kept) if has else jnp.asarray(True)
-    missed = jnp.where(
-        jnp.any(beyond & ~reached),
+    held = xp.all(kept, axis=-1) if has else xp.ones_like(ok)
+    # A target beyond every reach pulls hardest on the constraints: it is named first.
+    unreachable = xp.any(beyond & ~reached, axis=-1)
+    missed = xp.where(
+        unreachable,
         ReachStatus.UNREACHABLE,
-        jnp.where(
+        xp.where(
             ok,
             ReachStatus.INVALID_TARGET,
             ReachStatus.CONSTRAINED if has else ReachStatus.NOT_REACHED,
         ),
     )
-    # A target beyond every reach pulls hardest on the constraints: it is named first.
-    unreachable = jnp.any(beyond & ~reached)
-    return jnp.where(
+    return xp.where(
         ~held & ~unreachable,
         ReachStatus.CONSTRAINT_VIOLATED,
-        jnp.where(jnp.all(reached), ReachStatus.SUCCESS, missed),
+        xp.where(xp.all(reached, axis=-1), ReachStatus.SUCCESS, missed),
     ).astype(int)
 
 

@@ -15,6 +15,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike
 
 from .._body import Body, Pose
+from .._device_arrays import device_array
 from .._programs import compiled
 from .._spine import spine_angles
 from ..files._targets_file import read_targets
@@ -200,7 +201,7 @@ def _prepare(
     devices = list(jax.local_devices() if devices is None else devices)
     chunk = chunk_rows(chunk_size, n, len(devices))
     dtype = jnp.result_type(float)
-    tols = (jnp.asarray(tol_position, dtype), jnp.asarray(np.deg2rad(1.0), dtype))
+    tols = (device_array(tol_position, dtype), device_array(np.deg2rad(1.0), dtype))
     return _Setup(
         body=body,
         xyz=xyz,
@@ -419,11 +420,7 @@ def _batch_result(s: _Setup, best: Attempt, steps, beyond) -> ReachResult:
         check = lambda p: _violations_jit(s.body, p, c)  # noqa: E731
         violation = np.asarray(_over_poses(s, check, best.pose, "constraints"))
     kept = violation <= tol_position
-    status = (
-        np.asarray(jax.vmap(reach_status)(reached, valid, beyond & valid, kept))
-        if len(xyz)
-        else np.zeros(0, int)
-    )
+    status = reach_status(reached, valid, beyond & valid, kept)
     return ReachResult(
         pose=best.pose,
         reached=reached,

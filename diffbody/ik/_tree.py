@@ -29,20 +29,13 @@ from jaxtyping import Array, Bool, Float, Int
 from .._body import Body
 from .._body_cache import RANGES, BodyCache
 from .._device_arrays import device_array, take
+from ..runs._batches import bucket
 from ._targets import TargetSet
 from ._unknowns import Layout, make_layout
 
 # Target rows come in buckets of these sizes (points, axes), then doubling: a solve with a
 # row count within its bucket runs the program of the bucket.
 POINT_ROWS, AXIS_ROWS = 4, 2
-
-
-def bucket(n: int, least: int) -> int:
-    """The rows of the bucket that holds n rows: `least`, then doubling."""
-    rows = least
-    while rows < n:
-        rows *= 2
-    return rows
 
 
 class Plan(eqx.Module):

@@ -7,10 +7,16 @@ import subprocess
 import sys
 import textwrap
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
+from compiles import counted_compiles
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import diffbody as db
+from diffbody.ik._reach import reach_status
 from diffbody.ik._reach_batch import solve_reach_batch
 
 CHUNK = 2  # every batch here compiles the same function once
@@ -65,10 +71,40 @@ def test_a_row_is_the_same_whatever_shares_its_chunk(male50, batch):
 
 
 def test_chunks_equal_one_chunk(male50, batch):
-    one_chunk = solve_reach_batch(male50, "left_hand.palm", ROWS[2:], progress=False, **SOLVER)
-    np.testing.assert_allclose(one_chunk.residuals, batch.residuals[2:], atol=1e-12)
-    np.testing.assert_allclose(one_chunk.pose.angles, batch.pose.angles[2:], atol=1e-12)
-    np.testing.assert_array_equal(one_chunk.reached, batch.reached[2:])
+    """Three rows in one chunk (of four: the row counts' bucket) as in chunks of two."""
+    one_chunk = solve_reach_batch(male50, "left_hand.palm", ROWS[1:], progress=False, **SOLVER)
+    np.testing.assert_allclose(one_chunk.residuals, batch.residuals[1:], atol=1e-12)
+    np.testing.assert_allclose(one_chunk.pose.angles, batch.pose.angles[1:], atol=1e-12)
+    np.testing.assert_array_equal(one_chunk.reached, batch.reached[1:])
+
+
+def test_row_counts_within_a_bucket_share_one_program(male50, batch):
+    """Three rows and four run one program (a chunk of four rows, the last repeated), and
+    computing the rows' verdicts compiles nothing per row count (they are NumPy)."""
+    solve_reach_batch(male50, "left_hand.palm", ROWS[1:], progress=False, **SOLVER)
+    with counted_compiles() as seen:
+        four = solve_reach_batch(male50, "left_hand.palm", ROWS[::-1], progress=False, **SOLVER)
+        three = solve_reach_batch(male50, "left_hand.palm", ROWS[:3], progress=False, **SOLVER)
+    assert seen == []
+    np.testing.assert_allclose(four.residuals[::-1], batch.residuals, atol=1e-12)
+    np.testing.assert_array_equal(three.status, batch.status[:3])
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 2**16 - 1), st.integers(0, 3))
+def test_the_host_verdicts_are_the_compiled_ones(bits, n_kinds):
+    """`reach_status` in NumPy (the batch's rows) equals it in JAX (a single solve's,
+    compiled), for every pattern of verdicts of 3 rows of 2 targets and up to 3 constraint
+    kinds."""
+    flags = (bits >> np.arange(16)) & 1 == 1
+    reached, valid, beyond = (flags[i : i + 6].reshape(3, 2) for i in (0, 5, 10))
+    kept = np.resize(flags[::-1], (3, n_kinds))
+    host = reach_status(reached, valid, beyond, kept)
+    compiled = _status_jit(*(jnp.asarray(a) for a in (reached, valid, beyond, kept)))
+    np.testing.assert_array_equal(host, np.asarray(compiled))
+
+
+_status_jit = jax.jit(jax.vmap(reach_status))
 
 
 def test_a_nan_row_is_flagged_and_the_others_solved(male50, batch, capsys):
