@@ -22,9 +22,9 @@ def device_array(values, dtype=float) -> Array:
     return jax.device_put(np.asarray(values, dtype=jnp.result_type(dtype)))
 
 
-def take(table: np.ndarray, index) -> np.ndarray | np.generic | Array:
-    """table[index] of a static host table: on the host for host indices (a constant in a
-    traced program), a gather for traced ones (the indices are data)."""
-    if isinstance(index, jax.Array):
+def take(table: np.ndarray | Array, index) -> np.ndarray | np.generic | Array:
+    """table[index] of a table: on the host for a host table and host indices (a constant
+    in a traced program), a gather where either is data."""
+    if isinstance(index, jax.Array) or isinstance(table, jax.Array):
         return jnp.asarray(table)[index]
     return np.asarray(table)[np.asarray(index, int)]

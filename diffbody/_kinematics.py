@@ -12,7 +12,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 from ._body import PHI, TAU, THETA, Body, Pose, without_names
 from ._chain import Chain, make_chain, walk
@@ -196,17 +196,17 @@ def _relative_table_twist(
 
 
 def socket_rates_from_swing(
-    body: Body, swing: Float[Array, "k 2"], idx: np.ndarray
+    body: Body, swing: Float[Array, "k 2"], idx: np.ndarray | Array
 ) -> Float[Array, "2 k 3"]:
     """Body rates vee(R^T dR) of `socket_frames_from_swing`'s frames R per unit of w_x and
     of w_y, in closed form: R_rest exp(w) turns at J_r(w) dw (the right Jacobian); a limb
     with a table then turns about its own Z by its table twist t(w), which rotates that rate
-    by Rz(t)^T and adds dt about Z (`_relative_table_twist`)."""
-    idx = np.asarray(idx)
+    by Rz(t)^T and adds dt about Z (`_relative_table_twist`). `idx`: host or traced."""
+    idx = idx if isinstance(idx, jax.Array) else np.asarray(idx)
     w3 = jnp.concatenate([swing, jnp.zeros_like(swing[:, :1])], axis=-1)
     rates = jnp.moveaxis(right_jacobian(w3)[:, :, :2], -1, 0)  # (2, k, 3)
     code = table_codes(body, idx)
-    if np.all(code < 0):
+    if isinstance(code, np.ndarray) and np.all(code < 0):
         return rates
     R = matmul3(body.R_socket_rest[idx], exp_swing(swing))
     t, rate = _relative_table_twist(R, code)
@@ -325,10 +325,13 @@ def walk_links(
     R_socket_base: Float[Array, "k 3 3"],
     tau: Float[Array, " k"],
     bases: Links,
+    segments: Int[Array, " k"] | None = None,
 ) -> Links:
     """Forward kinematics of a chain's segments (chain order) from their base frames in
-    their sockets and their twists, hanging from `bases` (one walk)."""
-    seg = np.asarray(chain.segments, int)
+    their sockets and their twists, hanging from `bases` (one walk). `segments`: the global
+    segment of each chain slot when they are data (a limb chain, `ik._tree`), else the
+    chain's own."""
+    seg = np.asarray(chain.segments, int) if segments is None else segments
     R_local = matmul3(body.R_parent_socket[seg], R_socket_base)
     return walk(chain, link_step, bases, (R_local, tau, body.lengths[seg]))
 

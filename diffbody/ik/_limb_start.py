@@ -126,7 +126,7 @@ def limb_start(
 def _planned_limb_start(body: Body, targets: TargetSet, problem: Problem) -> Array:
     """`limb_start` on the whole tree's problem: its plan's limbs (data), all at once."""
     plan, links, tau = problem.plan, problem.start, problem.tau_start
-    position = np.asarray(problem.layout.read_slot, int)  # each segment's chain slot
+    position = problem.slot_of()  # each segment's chain slot
 
     def one(row, effector, upper, hinge):
         w_hinge = problem.swing0[take(position, hinge)]

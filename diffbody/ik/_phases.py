@@ -38,7 +38,7 @@ from ._attempt import (
     round_caps,
     solve_free,
 )
-from ._plans import fits_tree, make_plan
+from ._plans import fits_tree, make_limb_plan, make_plan
 from ._problem import stiffness_of
 from ._targets import TargetSet
 from ._tree import padded_targets, targets_rows, tree_layout
@@ -287,11 +287,12 @@ def _select(take: Array, a, b):
     return jax.tree.map(lambda x, y: jnp.where(take, x, y), a, b)
 
 
-def run_start(body, layout, init, ts, k: int, caps: list[int], tols, closed_form, plan=None):
+def run_start(body, layout, init, ts, k: int, caps: list[int], tols, closed_form, planned=None):
     """Start k of a phase, in rounds of `caps` steps until the solver stops; its attempt
-    counts the steps of every round. With the phase's `plan` (`phase_plans`) the rounds run
-    on the whole tree's program (`ts` then padded, `padded_targets`)."""
-    lay = layout if plan is None else tree_layout(body)
+    counts the steps of every round. With the phase's layout and plan (`phase_plans`) the
+    rounds run on their program, a limb chain's or the whole tree's (`ts` then padded,
+    `padded_targets`)."""
+    lay, plan = (layout, None) if planned is None else planned
     closed = closed_form if plan is None else True  # the plan says (data)
     x = np.zeros(lay.n_free, tols[0].dtype)
     spent, fresh = 0, True
@@ -312,10 +313,10 @@ def run_start(body, layout, init, ts, k: int, caps: list[int], tols, closed_form
 
 
 def phase_plans(body: Body, layouts: list[Layout], phase_targets) -> list | None:
-    """Each phase's plan on the whole tree's program (`_tree`), None for a phase that
-    compiles its own layout: the standing phase. None in all where the solve does not fit
-    the tree (a re-rooted body, a center-of-gravity target, a vertebra free without the
-    spine).
+    """Each phase's layout and plan (`_tree`): a limb chain's where the phase is one
+    (`make_limb_plan`), else the whole tree's; None for a phase that compiles its own
+    layout: the standing phase. None in all where the solve does not fit the tree (a
+    re-rooted body, a center-of-gravity target, a vertebra free without the spine).
 
     Why the standing phase keeps its own program: a far standing reach ends where its step
     budget runs out near a constrained equilibrium, and there rounding decides the answer
@@ -331,10 +332,15 @@ def phase_plans(body: Body, layouts: list[Layout], phase_targets) -> list | None
         if lay.standing:
             plans.append(None)
             continue
-        plan = make_plan(body, tree, lay, ts, uses_limb_start(k, ts), stiffness_of(body, lay))
+        closed, stiffness = uses_limb_start(k, ts), stiffness_of(body, lay)
+        limb = make_limb_plan(body, lay, ts, closed, stiffness)
+        if limb is not None:
+            plans.append(limb)
+            continue
+        plan = make_plan(body, tree, lay, ts, closed, stiffness)
         if plan is None:
             return None
-        plans.append(plan)
+        plans.append((tree, plan))
     return plans
 
 
@@ -364,12 +370,13 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plan
         beyond, far, caps = phase_plan(body, layouts, phase, start_pose, ts.point_xyz, steps_k)
         if not far.any():
             caps = round_caps(steps_k)
-        plan = None if plans is None else plans[phase]
-        solved = ts if plan is None else padded_targets(ts)
+        planned = None if plans is None else plans[phase]
+        limb = planned is not None and planned[1].chain is not None
+        solved = ts if planned is None else padded_targets(ts, limb)
         for k in range(1 if far.any() else starts):
             closed = uses_limb_start(phase, ts)
-            a = run_start(body, layout, start_pose, solved, k, caps, tols, closed, plan)
-            if plans is not None and plan is None:
+            a = run_start(body, layout, start_pose, solved, k, caps, tols, closed, planned)
+            if plans is not None and (planned is None or limb):
                 a = padded_errors(a, ts)  # as the whole tree's attempts, for one conclusion
             steps += int(a.steps)
             if best is None or bool(better(*jax.tree.map(np.asarray, (a, best)))):
@@ -381,10 +388,16 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plan
 
 
 def padded_errors(a: Attempt, ts: TargetSet) -> Attempt:
-    """An attempt's errors padded to the targets' buckets (host; `_tree.targets_rows`)."""
+    """An attempt's errors (its targets', or a limb chain's bucket of them) padded to the
+    whole tree's buckets (host; `_tree.targets_rows`)."""
     P, A = targets_rows(ts)
-    pad = lambda e, rows: np.concatenate([np.asarray(e), np.zeros(rows - len(e))])  # noqa: E731
-    return eqx.tree_at(lambda a: (a.err_p, a.err_a), a, (pad(a.err_p, P), pad(a.err_a, A)))
+    n_p, n_a = len(ts.point_index), len(ts.axis_segment)
+
+    def pad(e, n: int, rows: int) -> np.ndarray:
+        return np.concatenate([np.asarray(e)[:n], np.zeros(rows - n)])
+
+    errors = (pad(a.err_p, n_p, P), pad(a.err_a, n_a, A))
+    return eqx.tree_at(lambda a: (a.err_p, a.err_a), a, errors)
 
 
 def solve_traced(body, layouts, init, phase_targets, starts, max_steps, tols):

@@ -2,13 +2,14 @@
 body"): which of the tree's unknowns the phase moves, its limbs and effectors, as the data
 of the one compiled round (`_tree`)."""
 
+import equinox as eqx
 import numpy as np
 
 from .._body import Body
 from .._device_arrays import device_array
 from ._limb_start import limbs
 from ._targets import TargetSet
-from ._tree import Plan, targets_rows, tree_entries
+from ._tree import LIMB_SLOTS, Plan, limb_layout, targets_rows, tree_entries
 from ._unknowns import Layout
 
 
@@ -28,29 +29,73 @@ def make_plan(
     entries = tree_entries(tree, phase)
     if entries is None:
         return None
-    free = np.zeros(tree.n_free, bool)
-    free[entries] = True
-    stiff = np.ones(tree.n_free)
-    stiff[entries] = stiffness
     spine_rows = set(phase.spine_rows)
     vertebrae = np.asarray([r in spine_rows for r in tree.spine_rows], bool)
+    return _plan(body, phase, targets, closed, stiffness, entries, tree.n_free, vertebrae)
+
+
+def make_limb_plan(
+    body: Body, phase: Layout, targets: TargetSet, closed: bool, stiffness
+) -> tuple[Layout, Plan] | None:
+    """The layout and plan of a phase on a limb chain's program (`_tree.limb_layout`): its
+    chain's segments, padded to the program's slots by repeats of the last, which nothing
+    reads or moves. None when the phase is not a limb chain: a path of at most
+    `LIMB_SLOTS[-1]` segments hanging from one segment below the world, its effectors on
+    it, and no spine, root, constraint or whole-tree effector."""
+    chain, m = phase.chain, phase.chain.size
+    path = chain.parent_slot == (m,) + tuple(range(m - 1))
+    if not (0 < m <= LIMB_SLOTS[-1] and path and chain.n_bases == 1 and phase.bases[0] >= 0):
+        return None
+    if phase.spine or phase.root or phase.full or phase.read_slot or targets.constraints:
+        return None
+    if any(s >= m for s in phase.point_slot + phase.axis_slot):
+        return None
+    K = next(k for k in LIMB_SLOTS if m <= k)
+    limb = limb_layout(K)
+    at = {"swing_x": 0, "swing_y": K, "twist": 2 * K}
+    entries = [at[part] + k for part in at for k in getattr(phase, part)]
+    plan = _plan(body, phase, targets, closed, stiffness, entries, limb.n_free, [], True)
+    segments = list(chain.segments) + [chain.segments[-1]] * (K - m)
+    slot_of = np.zeros(body.n_segments, int)
+    slot_of[list(chain.segments)] = np.arange(m)
+    slot_of[phase.bases[0]] = K
+    return limb, eqx.tree_at(
+        lambda p: (p.chain, p.base, p.slot_of),
+        plan,
+        (
+            device_array(segments, int),
+            device_array(phase.bases[:1], int),
+            device_array(slot_of, int),
+        ),
+        is_leaf=lambda x: x is None,
+    )
+
+
+def _plan(body, phase, targets, closed, stiffness, entries, n_free, vertebrae, limb=False):
+    """A phase's plan on a free vector of `n_free` entries, the phase's unknowns at
+    `entries` (`make_plan`, `make_limb_plan`)."""
+    entries = np.asarray(entries, int)
+    free = np.zeros(n_free, bool)
+    free[entries] = True
+    stiff = np.ones(n_free)
+    stiff[entries] = stiffness
     moves = np.zeros(body.n_segments, bool)
     segs = phase.chain.segments
     moves[[segs[k] for k in set(phase.swing_x + phase.swing_y + phase.twist)]] = True
-    P, A = targets_rows(targets)
+    P, A = targets_rows(targets, limb)
     found = limbs(body, phase, targets.axis_segment)
     table = np.zeros((P, 4), int)
     use = np.zeros(P, bool)
-    for i, limb in enumerate(found):
-        local = (*limb.x_upper[:2], limb.x_hinge, limb.x_upper[2])
+    for i, one in enumerate(found):
+        local = (*one.x_upper[:2], one.x_hinge, one.x_upper[2])
         table[i] = [entries[k] if k >= 0 else -1 for k in local]
         use[i] = True
-    rows = [(limb.row, limb.effector, limb.upper, limb.hinge) for limb in found]
+    rows = [(one.row, one.effector, one.upper, one.hinge) for one in found]
     rows += [(0, 1, 0, 0)] * (P - len(found))
     limb_row, limb_effector, limb_upper, limb_hinge = (np.asarray(c, int) for c in zip(*rows))
     return Plan(
         free=device_array(free, bool),
-        vertebrae=device_array(vertebrae, bool),
+        vertebrae=device_array(np.asarray(vertebrae, bool), bool),
         moves=device_array(moves, bool),
         stiffness=device_array(stiff),
         closed=device_array(closed, bool),

@@ -59,7 +59,7 @@ def swing_frames(problem, w: Array) -> list:
     k = np.asarray(sorted(set(lay.swing_x + lay.swing_y + lay.twist)), int)
     if not k.size:
         return []
-    seg = np.asarray(lay.chain.segments, int)[k]
+    seg = problem.segments()[k]
     return [(k, socket_frames_from_swing(problem.body, w[k], seg), None)]
 
 
@@ -110,7 +110,7 @@ def walk_points(problem, slots, lengths, offsets, heights, x):
     links, tau = eqx.tree_at(lambda p: p.body, problem, body).links(x)
     allof = jax.tree.map(lambda c, s: jnp.concatenate([c, s]), links, problem.bases)
     tau_all = jnp.concatenate([tau, problem.tau_bases])
-    seg = segments_of(problem.layout, slots)
+    seg = take(problem.slot_segments(), slots)
     local = place_on_segments(body, seg, offsets, heights, allof.R_base[slots], tau_all[slots])
     return allof.p_proximal[slots] + local, links, tau
 
@@ -222,7 +222,7 @@ def _unit_rates(problem, x: Array) -> tuple[Array, Array, Array]:
     k = np.asarray(sorted(set(lay.swing_x + lay.swing_y + lay.twist)), int)
     r = jnp.zeros((2, m, 3), dtype)
     if k.size:
-        seg = np.asarray(lay.chain.segments, int)[k]
+        seg = problem.segments()[k]
         r = _spread(m, k, socket_rates_from_swing(problem.body, w[k], seg))
     rates.append(r)
     twists.append(jnp.zeros((2, m), dtype))
@@ -317,7 +317,7 @@ def _tree_points_jvp(primals, tangents):
         return jax.jvp(fn, primals[1:], tangents)
     p, links, tau = walk_points(problem, slots, lengths, offsets, heights, x)
     lay = problem.layout
-    slot, seg = slots, segments_of(lay, slots)
+    slot, seg = slots, take(problem.slot_segments(), slots)
     L = lengths[seg]
     frac = twist_fraction(heights, L)
     safe_L = jnp.where(L > 0, L, 1.0)  # a segment of length 0 has no twist share to change
@@ -333,7 +333,7 @@ def _tree_points_jvp(primals, tangents):
     d_frac = jnp.zeros_like(frac)
     if not _zero(d_lengths):
         on_path, own = (jnp.asarray(a, p.dtype) for a in _ancestry(lay, slots))
-        dL = d_lengths[np.asarray(lay.chain.segments, int)]
+        dL = d_lengths[problem.segments()]
         dp = dp + (on_path - own) @ (dL[:, None] * links.R_base[:, :, 2])
         d_frac = d_frac - heights * d_lengths[seg] / safe_L**2
     if not _zero(d_offsets):

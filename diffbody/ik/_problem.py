@@ -73,6 +73,24 @@ class Problem(eqx.Module):
     tau_start: Float[Array, " n_seg"]  # the start's twists of every segment
     plan: Plan | None = None  # the whole tree's: what this solve moves and reaches (`_tree`)
 
+    # --- the chain's segments (static, or the plan's on a limb chain) ---------------------
+    def segments(self) -> np.ndarray | Array:
+        """(m,) the global segment of each chain slot."""
+        return chain_segments(self.layout, self.plan)
+
+    def slot_of(self) -> np.ndarray | Array:
+        """(n_seg,) each segment's slot (chain, then bases) where it is read."""
+        if self.plan is not None and self.plan.slot_of is not None:
+            return self.plan.slot_of
+        return np.asarray(self.layout.read_slot, int)
+
+    def slot_segments(self) -> np.ndarray | Array:
+        """(m + n_bases,) the global segment of each slot (chain, then bases; the world 0)."""
+        if self.plan is not None and self.plan.chain is not None:
+            return jnp.concatenate([self.plan.chain, self.plan.base])
+        lay = self.layout
+        return np.maximum(np.asarray(lay.chain.segments + lay.bases, int), 0)
+
     # --- the free vector to the live segments -------------------------------------------
     def state(self, x: Array):
         """Swing vectors (m, 2), twists (m,), spine target (or None) and root placement of
@@ -84,7 +102,7 @@ class Problem(eqx.Module):
         lo_sx, lo_sy, lo_tw, lo_sp, _ = lay.split(self.lo)
         hi_sx, hi_sy, hi_tw, hi_sp, _ = lay.split(self.hi)
         m = lay.chain.size
-        seg = np.asarray(lay.chain.segments, int)
+        seg = self.segments()
 
         def spread(free: tuple[int, ...], values: Array, default: Array) -> Array:
             index = np.zeros(m, int)
@@ -117,7 +135,7 @@ class Problem(eqx.Module):
                 bases,
                 world,
             )
-        links = walk_links(b, lay.chain, R, tau, bases)
+        links = walk_links(b, lay.chain, R, tau, bases, self.plan and self.plan.chain)
         if lay.full:
             links = global_order(lay, links)
             links = reroot(b, links, position)
@@ -149,7 +167,7 @@ class Problem(eqx.Module):
             heights += [b.lengths[axis_seg], jnp.zeros(n_a, x.dtype)]
         else:
             n_a = targets.axis_weight.shape[0]
-            for s, o, h in effector_rows(b, lay, self.plan, targets):
+            for s, o, h in effector_rows(b, self.slot_of(), self.plan, targets):
                 slots.append(s)
                 offsets.append(o)
                 heights.append(h)
@@ -231,9 +249,17 @@ class Problem(eqx.Module):
         phi, tau), the spine as its target when it moved."""
         lay, b = self.layout, self.body
         w, tau, spine_target, root = self.state(x)
-        seg = np.asarray(lay.chain.segments, int)
         n = b.n_segments
         angles = jnp.asarray(init.angles)
+        plan = self.plan
+        if plan is not None and plan.chain is not None:
+            # A limb chain: each moved segment reads its slot (a gather, no scatter).
+            at = jnp.clip(plan.slot_of, 0, lay.chain.size - 1)
+            W = jnp.where(plan.moves[:, None], w[at], swing_vector(b, angles))
+            T = jnp.where(plan.moves, tau[at], angles[:, 2])
+            angles = jnp.where(plan.moves[:, None], angles_from_swing(b, W, T), angles)
+            return Pose(init.position, angles, init.spine_target)
+        seg = np.asarray(lay.chain.segments, int)
         spine_rows = set(lay.spine)
         k = np.asarray([i for i in range(len(seg)) if i not in spine_rows and seg[i] != 0], int)
         if k.size:
@@ -328,8 +354,10 @@ def make_problem(body: Body, layout: Layout, init: Pose, plan: Plan | None = Non
     """Build the fixed part of a solve (traceable: the init and the body may be traced);
     `plan`: the whole tree's (`_tree`), with `tree_layout`."""
     links, R_socket, tau = start_links(body, init)
-    seg = np.asarray(layout.chain.segments, int)
+    seg = chain_segments(layout, plan)
     bases_seg = np.asarray([max(s, 0) for s in layout.bases], int)
+    if plan is not None and plan.base is not None:
+        bases_seg = plan.base
     bases = jax.tree.map(lambda a: a[bases_seg], links)
     w_all = swing_vector(body, jnp.asarray(init.angles))
     sx, sy, tw = (np.asarray(a, int) for a in (layout.swing_x, layout.swing_y, layout.twist))
@@ -376,6 +404,14 @@ def make_problem(body: Body, layout: Layout, init: Pose, plan: Plan | None = Non
         tau_start=tau,
         plan=plan,
     )
+
+
+def chain_segments(layout: Layout, plan: Plan | None) -> np.ndarray | Array:
+    """(m,) the global segment of each chain slot: the plan's on a limb chain (data), else
+    the layout's."""
+    if plan is not None and plan.chain is not None:
+        return plan.chain
+    return np.asarray(layout.chain.segments, int)
 
 
 def stiffness_of(body: Body, layout: Layout) -> np.ndarray:

@@ -23,23 +23,40 @@ from ..runs._batches import chunk_rows, map_chunks, row_sharding
 from ._attempt import Attempt, attempt_round, better, phase_steps, round_caps
 from ._constraints import is_constraint, pose_violations
 from ._phases import is_none, phase_layouts, phase_plan, phase_targets_of, uses_limb_start
+from ._plans import make_limb_plan
 from ._post_projection import finish, keep_mask, needs_projection
+from ._problem import stiffness_of
 from ._reach import ReachResult, check_settings, constrained_targets, reach_status
 from ._targets import Target, TargetSet, resolve_targets
+from ._tree import padded_targets
 from ._unknowns import Layout
 
 
 def _round_rows(
-    body, layout, inits, template: TargetSet, xyz, x, ks, fresh, cap, tol_pos, tol_ang, closed
+    body,
+    layout,
+    inits,
+    template: TargetSet,
+    xyz,
+    x,
+    ks,
+    fresh,
+    cap,
+    tol_pos,
+    tol_ang,
+    closed,
+    plan=None,
 ):
     """`attempt_round` vmapped over rows: their start poses (or one `Pose` shared by every
     row: then what depends on it alone, the start's walk and problem, is computed once per
     chunk, not per row), target positions (batch, k, 3), free vectors to go on from, start
-    indices and whether each begins its start."""
+    indices and whether each begins its start. `plan`: a limb chain's (`_tree`), shared by
+    every row."""
 
     def one(init, p, x, k, f):
         targets = eqx.tree_at(lambda t: t.point_xyz, template, p)
-        return attempt_round(body, layout, init, targets, x, k, f, cap, tol_pos, tol_ang, closed)
+        tols = (tol_pos, tol_ang)
+        return attempt_round(body, layout, init, targets, x, k, f, cap, *tols, closed, plan)
 
     shared = jnp.ndim(inits.position) == 1
     return jax.vmap(one, in_axes=(None if shared else 0, 0, 0, 0, 0))(inits, xyz, x, ks, fresh)
@@ -141,6 +158,8 @@ class _Setup:
     body: Body
     xyz: np.ndarray  # (n, k, 3) m
     templates: list[TargetSet]  # per phase, the targets of one row (positions replaced)
+    plans: list  # per phase, its limb chain's layout and plan, or None (`_limb_plans`)
+    closed: list[bool]  # per phase, whether its first start is the closed-form limb start
     init: Pose
     layouts: list[Layout]  # the phases
     starts: int
@@ -206,6 +225,8 @@ def _prepare(
         body=body,
         xyz=xyz,
         templates=templates,
+        plans=_limb_plans(body, layouts, templates),
+        closed=[uses_limb_start(k, templates[0]) for k in range(len(layouts))],
         init=init,
         layouts=layouts,
         starts=starts,
@@ -219,32 +240,50 @@ def _prepare(
     )
 
 
-def _round(s: _Setup, layout: Layout, rows, poses: Pose | None, x, ks, fresh, cap, closed, label):
-    """One round of rows (their start poses, None: all from s.init; free vectors, start
-    indices and whether each begins its start), in chunks: the free vectors, whether each
-    solve ended, the attempts."""
-    template = s.templates[next(i for i, lay in enumerate(s.layouts) if lay is layout)]
+def _round(s: _Setup, phase: int, rows, poses: Pose | None, x, ks, fresh, cap, label):
+    """One round of a phase's rows (their start poses, None: all from s.init; free vectors,
+    start indices and whether each begins its start), in chunks: the free vectors, whether
+    each solve ended, the attempts. A limb chain's phase runs on its program (`_tree`): the
+    targets padded to their bucket, the errors cut back to the effectors."""
+    layout, template, closed = s.layouts[phase], s.templates[phase], s.closed[phase]
+    planned = s.plans[phase]
+    xyz = s.xyz[rows]
+    plan = None
+    if planned is not None:
+        layout, plan = planned
+        closed = True  # the plan says (data): one program either way
+        template = padded_targets(template, limb=True)
+        P = template.point_xyz.shape[0]
+        xyz = np.concatenate([xyz, np.full((len(rows), P - xyz.shape[1], 3), np.nan)], axis=1)
     cap = np.asarray(cap, np.int32)  # data: every round cap shares one program
 
     def fn(p, xyz, x, k, f):
-        return _round_rows_jit(s.body, layout, p, template, xyz, x, k, f, cap, *s.tols, closed)
+        args = (s.body, layout, p, template, xyz, x, k, f, cap, *s.tols, closed, plan)
+        return _round_rows_jit(*args)
 
     chunk = s.chunk if 2 * len(rows) > s.chunk else s.retry_chunk
-    arrays = (s.xyz[rows], x, ks, fresh)
+    arrays = (xyz, x, ks, fresh)
+    opts = dict(chunk=chunk, sharding=s.sharding, progress=s.progress, label=label, unit="solve")
     if poses is None:  # every row starts from s.init
-        return map_chunks(
-            functools.partial(fn, s.init),
-            arrays,
-            chunk=chunk,
-            sharding=s.sharding,
-            progress=s.progress,
-            label=label,
-            unit="solve",
-        )
-    arrays = (poses,) + arrays
-    return map_chunks(
-        fn, arrays, chunk=chunk, sharding=s.sharding, progress=s.progress, label=label, unit="solve"
-    )
+        x, done, a = map_chunks(functools.partial(fn, s.init), arrays, **opts)
+    else:
+        x, done, a = map_chunks(fn, (poses,) + arrays, **opts)
+    if planned is not None:
+        a = eqx.tree_at(lambda a: a.err_p, a, a.err_p[:, : s.xyz.shape[1]])
+    return x, done, a
+
+
+def _limb_plans(body: Body, layouts: list[Layout], templates: list[TargetSet]) -> list:
+    """Per phase, its limb chain's layout and plan (`make_limb_plan`), or None: the phase
+    compiles its own layout (the trunk's, standing; a chain of several limbs)."""
+    plans = []
+    for k, (layout, ts) in enumerate(zip(layouts, templates)):
+        if layout.standing or body.root_joint != body.default_root_joint:
+            plans.append(None)
+            continue
+        closed = uses_limb_start(k, templates[0])
+        plans.append(make_limb_plan(body, layout, ts, closed, stiffness_of(body, layout)))
+    return plans
 
 
 def _rows(tree, rows):
@@ -322,7 +361,8 @@ def _start(
     (a row out of reach: `far_caps`). Returns the attempts and the steps of each row."""
     m = len(rows)
     caps = round_caps(phase_steps(layout, s.max_steps))
-    x = np.zeros((m, layout.n_free), np.dtype(s.tols[0].dtype))
+    n_free = (layout if s.plans[phase] is None else s.plans[phase][0]).n_free
+    x = np.zeros((m, n_free), np.dtype(s.tols[0].dtype))
     spent = np.zeros(m, int)
     fresh = np.ones(m, bool)
     ks = np.broadcast_to(start, (m,)).copy()
@@ -330,11 +370,10 @@ def _start(
     out = None
     going = np.arange(m)
     label = "reach" if phase == 0 and np.all(start == 0) else "reach, further starts"
-    closed = uses_limb_start(phase, s.templates[0])
     for r, cap in enumerate(caps):
         poses = None if start_poses is None else _rows(start_poses, rows[going])
         g = going
-        x_r, done, a = _round(s, layout, rows[g], poses, x[g], ks[g], fresh[g], cap, closed, label)
+        x_r, done, a = _round(s, phase, rows[g], poses, x[g], ks[g], fresh[g], cap, label)
         x[going], fresh[going] = x_r, False
         spent[going] += a.steps
         out = a if out is None else _merge(out, going, a)

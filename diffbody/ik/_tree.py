@@ -13,6 +13,12 @@ free vector), and a `Plan` of arrays says what this solve moves and reaches for:
   row's target is not finite, so it takes no part, as any invalid target);
 - the closed-form limb start's limbs (`_limb_start`), and whether the first start is it.
 
+A limb's chain has a program of its own, small enough for batches (`limb_layout`: a path
+of `LIMB_SLOTS` segments, each with its swing and twist in the free vector): the plan then
+names the chain's segments and the one it hangs from (data), so every arm or leg reach of a
+body shares it, whatever its effector or segment subset; a whole-tree round walks every
+segment for each residual, ten times the work of a limb's four.
+
 The phase's own layout stays the host's account of the solve (reach bounds, the
 post-projection's twists). The free vector's order restricted to a phase's unknowns is the
 phase's own order (both chains list segments by depth, then index), so the starts, pulls and
@@ -28,6 +34,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._body import Body
 from .._body_cache import RANGES, BodyCache
+from .._chain import Chain
 from .._device_arrays import device_array, take
 from ..runs._batches import bucket
 from ._targets import TargetSet
@@ -47,7 +54,9 @@ class Plan(eqx.Module):
     closed-form limb start; point_effector (P,): into [joints, features]; axis_segment
     (A,); the limbs (L = P rows, `use` False on pads): their point target row, effector,
     upper and hinge segments and free-vector entries (L, 4: upper swing_x, swing_y, hinge
-    flexion, upper twist; -1 where not free).
+    flexion, upper twist; -1 where not free). On a limb chain (`limb_layout`): chain (m,),
+    the global segment of each chain slot, base (1,), the one the chain hangs from, and
+    slot_of (n_seg,), each segment's chain slot (m: the base); None on the whole tree.
     """
 
     free: Bool[Array, " n_free"]
@@ -63,6 +72,9 @@ class Plan(eqx.Module):
     limb_upper: Int[Array, " L"]
     limb_hinge: Int[Array, " L"]
     limb_entries: Int[Array, "L 4"]
+    chain: Int[Array, " m"] | None = None
+    base: Int[Array, " 1"] | None = None
+    slot_of: Int[Array, " n_seg"] | None = None
 
 
 def tree_layout(body: Body) -> Layout:
@@ -85,6 +97,38 @@ def _tree_layout(body: Body) -> Layout:
         points=(),
         point_slot=(),
         read_slot=tuple(every.chain.position(s) for s in range(n)),
+    )
+
+
+# The longest limb chain with a program of its own (`limb_layout`); shorter chains take the
+# program of `LIMB_SLOTS[0]` slots or, past it, of the next.
+LIMB_SLOTS = (4, 6)
+
+
+def limb_layout(slots: int) -> Layout:
+    """The layout of a limb chain of `slots` segments (a path, slot k hanging from slot
+    k - 1 and slot 0 from the one base), each with its swing vector and twist in the free
+    vector; its segments are the plan's (data). The same for every body."""
+    chain = Chain(
+        segments=tuple(range(slots)),
+        parent_slot=(slots,) + tuple(range(slots - 1)),
+        levels=tuple((k,) for k in range(slots)),
+        n_bases=1,
+    )
+    every = tuple(range(slots))
+    return Layout(
+        chain=chain,
+        bases=(slots,),  # a placeholder: the plan's base (data) is the segment
+        swing_x=every,
+        swing_y=every,
+        twist=every,
+        spine=(),
+        spine_rows=(),
+        root=False,
+        full=False,
+        points=(),
+        point_slot=(),
+        axis_slot=(),
     )
 
 
@@ -111,18 +155,20 @@ def tree_entries(tree: Layout, phase: Layout) -> np.ndarray | None:
     return np.asarray(out, int)
 
 
-def targets_rows(targets: TargetSet) -> tuple[int, int]:
-    """The buckets (point rows, axis rows) of a target set."""
-    return (
-        bucket(len(targets.point_index), POINT_ROWS),
-        bucket(len(targets.axis_segment), AXIS_ROWS),
-    )
+def targets_rows(targets: TargetSet, limb: bool = False) -> tuple[int, int]:
+    """The buckets (point rows, axis rows) of a target set: on a limb chain (`limb`) the
+    rows it has, rounded up to a power of two (no axis row without an axis target)."""
+    n_p, n_a = len(targets.point_index), len(targets.axis_segment)
+    if limb:
+        return bucket(n_p), bucket(n_a) if n_a else 0
+    return bucket(n_p, POINT_ROWS), bucket(n_a, AXIS_ROWS)
 
 
-def padded_targets(targets: TargetSet) -> TargetSet:
-    """The target set padded to its buckets (host): pad rows are not finite (so they take
-    no part) and weigh nothing; the effectors are the plan's (data), not the set's."""
-    P, A = targets_rows(targets)
+def padded_targets(targets: TargetSet, limb: bool = False) -> TargetSet:
+    """The target set padded to its buckets (host, `targets_rows`): pad rows are not finite
+    (so they take no part) and weigh nothing; the effectors are the plan's (data), not the
+    set's."""
+    P, A = targets_rows(targets, limb)
 
     def pad(a, rows: int, fill: float) -> Array:
         a = np.asarray(a)
@@ -141,13 +187,13 @@ def padded_targets(targets: TargetSet) -> TargetSet:
     )
 
 
-def effector_rows(body: Body, tree: Layout, plan: Plan, targets: TargetSet) -> list[tuple]:
+def effector_rows(body: Body, slot_of, plan: Plan, targets: TargetSet) -> list[tuple]:
     """The point kernel's rows (slots, offsets, heights) of the plan's targets, as data:
     the point effectors (P; a joint j >= 1 ends segment j - 1, joint 0 is the whole body's
     origin, a feature lies on its sphere), then each axis target as two points, at its local
-    direction and at its segment's proximal joint (A each)."""
+    direction and at its segment's proximal joint (A each). `slot_of` (n_seg,): each
+    segment's slot (`Problem.slot_of`)."""
     n_j, n_f = body.n_joints, len(body.feature_names)
-    slot_of = np.asarray(tree.read_slot, int)
     e = plan.point_effector
     joint = e < n_j
     seg = jnp.maximum(e - 1, 0)

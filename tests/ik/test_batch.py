@@ -90,6 +90,30 @@ def test_row_counts_within_a_bucket_share_one_program(male50, batch):
     np.testing.assert_array_equal(three.status, batch.status[:3])
 
 
+def test_another_limb_compiles_nothing(male50, batch):
+    """Every limb chain of up to four segments runs one program (`_tree.limb_layout`, its
+    segments data): after the left arm's rows, the right arm's and the left leg's (the
+    ankle, a few centimetres forward and up) compile nothing new, and reach."""
+    right = ROWS * [1.0, -1.0, 1.0]
+    right_arm = [name.replace("left", "right") for name in ARM]
+    ankle = np.asarray(db.forward(male50, male50.rest_pose()).joint_positions)[
+        male50.joint_names.index("left_ankle")
+    ]
+    feet = ankle + np.asarray([[0.15, 0.0, 0.1], [0.1, 0.05, 0.05]])
+    with counted_compiles() as seen:
+        arm = solve_reach_batch(
+            male50, "right_hand.palm", right, chunk_size=CHUNK, progress=False,
+            segments=right_arm, starts=1,
+        )  # fmt: skip
+        leg = solve_reach_batch(
+            male50, "left_ankle", feet, chunk_size=CHUNK, progress=False, starts=1, standing=False
+        )
+    assert seen == []
+    assert arm.reached.all() and leg.reached.all()
+    # The right arm mirrors the left: the same distances, to rounding.
+    np.testing.assert_allclose(arm.residuals, batch.residuals, atol=1e-6)
+
+
 @settings(max_examples=50, deadline=None)
 @given(st.integers(0, 2**16 - 1), st.integers(0, 3))
 def test_the_host_verdicts_are_the_compiled_ones(bits, n_kinds):

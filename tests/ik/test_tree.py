@@ -1,5 +1,5 @@
-"""The whole tree's problem against a phase's own (docs/design.md, section 6, "One program
-per body"): the same residuals, Jacobian, starts and limb start on the phase's unknowns,
+"""The whole tree's problem and a limb chain's against a phase's own (docs/design.md,
+section 6, "One program per body", "Limb chains"): the same residuals, Jacobian, starts and limb start on the phase's unknowns,
 nothing moving elsewhere (reference: the phase's own layout, an independent program)."""
 
 import equinox as eqx
@@ -10,7 +10,7 @@ import pytest
 import diffbody as db
 from diffbody.ik._attempt import start_vector
 from diffbody.ik._phases import phase_layouts, phase_plans, phase_targets_of
-from diffbody.ik._plans import make_plan
+from diffbody.ik._plans import make_limb_plan, make_plan
 from diffbody.ik._problem import make_problem, stiffness_of
 from diffbody.ik._reach import constrained_targets
 from diffbody.ik._targets import Target, mask_invalid, resolve_targets
@@ -18,6 +18,7 @@ from diffbody.ik._tree import padded_targets, targets_rows, tree_entries, tree_l
 
 CASES = {
     "palm": [Target.position("left_hand.palm", (0.35, 0.3, 1.1))],
+    "wrist, a padded limb chain": [Target.position("left_wrist", (0.3, 0.4, 1.2))],
     "two hands and a direction": [
         Target.position("left_wrist", (0.3, 0.4, 1.2)),
         Target.position("right_hand.palm", (-0.3, 0.35, 1.2)),
@@ -48,31 +49,53 @@ def _phases_of(body, targets, stand=True):
     return init, layouts, phase_targets_of(layouts, pts)
 
 
-@pytest.mark.parametrize("name", ["two hands and a direction", "far, standing"])
-def test_the_tree_problem_is_each_phase_s_problem(name):
+def _planned(body, layout, ts, k: int, limb: bool):
+    """The layout, plan and padded targets of phase k on the whole tree's program or on a
+    limb chain's, and where the phase's unknowns sit in its free vector."""
+    stiffness = stiffness_of(body, layout)
+    if limb:
+        big, plan = make_limb_plan(body, layout, ts, k == 0, stiffness)
+    else:
+        big = tree_layout(body)
+        plan = make_plan(body, big, layout, ts, k == 0, stiffness)
+        np.testing.assert_array_equal(np.flatnonzero(plan.free), tree_entries(big, layout))
+    padded, _, _ = mask_invalid(padded_targets(ts, limb))
+    return big, plan, padded, np.flatnonzero(np.asarray(plan.free))
+
+
+PROBLEMS = [
+    ("two hands and a direction", False),
+    ("far, standing", False),
+    ("palm", True),
+    ("wrist, a padded limb chain", True),
+]
+
+
+@pytest.mark.parametrize("name, limb", PROBLEMS)
+def test_the_planned_problem_is_each_phase_s_problem(name, limb):
     """For every phase (the standing one included, although it runs on its own program),
-    at random free vectors: the tree's residuals on the given target rows, the constraint
-    rows and the pull rows of the phase's unknowns equal the phase's to 1e-12, the other
-    rows are zero, and the Jacobian's columns of the phase's unknowns equal the phase's
-    Jacobian while the others move nothing but their own pull."""
+    at random free vectors: the whole tree's (or, for a limb's phase, the limb chain's)
+    residuals on the given target rows, the constraint rows and the pull rows of the
+    phase's unknowns equal the phase's to 1e-12, the other rows are zero, and the
+    Jacobian's columns of the phase's unknowns equal the phase's Jacobian while the others
+    move nothing but their own pull."""
     body = db.load_body()
     init, layouts, sets = _phases_of(body, CASES[name])
-    tree = tree_layout(body)
     rng = np.random.default_rng(3)
     for k, (layout, ts) in enumerate(zip(layouts, sets)):
-        plan = make_plan(body, tree, layout, ts, k == 0, stiffness_of(body, layout))
-        entries = tree_entries(tree, layout)
+        if limb and k > 0:
+            break
+        big, plan, padded, entries = _planned(body, layout, ts, k, limb)
         own, _, _ = mask_invalid(ts)
-        padded, _, _ = mask_invalid(padded_targets(ts))
         x0 = _starts(body, layout, init, None, own, np.int32(0))[0]
-        X0 = _starts(body, tree, init, plan, padded, np.int32(0))[0]
+        X0 = _starts(body, big, init, plan, padded, np.int32(0))[0]
         x = np.asarray(x0) + 0.2 * rng.standard_normal(layout.n_free)
         X = np.asarray(X0).copy()
         X[entries] = x
         r, J = (np.asarray(a) for a in _evaluate(body, layout, init, None, x, own))
-        R, JJ = (np.asarray(a) for a in _evaluate(body, tree, init, plan, X, padded))
+        R, JJ = (np.asarray(a) for a in _evaluate(body, big, init, plan, X, padded))
         n_p, n_a = len(ts.point_weight), len(ts.axis_weight)
-        P, A = targets_rows(ts)
+        P, A = targets_rows(ts, limb)
         n_c = r.shape[0] - 3 * (n_p + n_a) - layout.n_free
         take = np.concatenate(
             [
@@ -85,39 +108,38 @@ def test_the_tree_problem_is_each_phase_s_problem(name):
         np.testing.assert_allclose(R[take], r, rtol=0, atol=1e-12)
         np.testing.assert_array_equal(np.delete(R, take), 0.0)
         np.testing.assert_allclose(JJ[np.ix_(take, entries)], J, rtol=0, atol=1e-10)
-        others = np.setdiff1d(np.arange(tree.n_free), entries)
+        others = np.setdiff1d(np.arange(big.n_free), entries)
         pull_rows = 3 * (P + A) + n_c + others
         np.testing.assert_array_equal(np.delete(JJ[:, others], pull_rows, axis=0), 0.0)
 
 
-@pytest.mark.parametrize("name", ["two hands and a direction"])
-def test_the_tree_starts_are_the_phase_s_starts(name):
+@pytest.mark.parametrize("name, limb", [PROBLEMS[0], PROBLEMS[3]])
+def test_the_planned_starts_are_the_phase_s_starts(name, limb):
     """The closed-form limb start (data: the plan's limbs) and the Halton starts (by rank
     among the free entries) equal the phase's own starts on its unknowns, and leave every
-    other entry at the start pose's."""
+    other entry at the start pose's; `phase_plans` picks the limb chain where it can."""
     body = db.load_body()
     init, layouts, sets = _phases_of(body, CASES[name])
     layout, ts = layouts[0], sets[0]
-    tree = tree_layout(body)
-    (plan,) = phase_plans(body, layouts[:1], sets[:1])
-    entries = tree_entries(tree, layout)
+    ((big, plan),) = phase_plans(body, layouts[:1], sets[:1])
+    assert (plan.chain is not None) == limb
+    _, _, padded, entries = _planned(body, layout, ts, 0, limb)
     own, _, _ = mask_invalid(ts)
-    padded, _, _ = mask_invalid(padded_targets(ts))
     for k in range(4):
         a = np.asarray(_starts(body, layout, init, None, own, np.int32(k))[1])
-        X0, b = (np.asarray(v) for v in _starts(body, tree, init, plan, padded, np.int32(k)))
+        X0, b = (np.asarray(v) for v in _starts(body, big, init, plan, padded, np.int32(k)))
         np.testing.assert_allclose(b[entries], a, rtol=0, atol=1e-12)
-        others = np.setdiff1d(np.arange(tree.n_free), entries)
+        others = np.setdiff1d(np.arange(big.n_free), entries)
         np.testing.assert_array_equal(b[others], X0[others])
 
 
 def test_the_tree_answers_are_the_phase_s_answers():
-    """Reachable arm targets, solved on the whole tree's program and on the phase's own:
-    both reach, and the joints agree to 0.1 mm (a converged solve forgets rounding)."""
+    """Reachable arm targets, solved on the whole tree's program (two arms) or a limb
+    chain's (one) and on the phase's own: both reach, and the joints agree to 0.1 mm (a converged solve forgets rounding)."""
     from diffbody.ik import _reach
 
     body = db.load_body()
-    for targets in (CASES["two hands and a direction"],):
+    for targets in (CASES["two hands and a direction"], CASES["wrist, a padded limb chain"]):
         tree = db.solve_reach(body, targets)
         with pytest.MonkeyPatch.context() as patch:
             patch.setattr(_reach, "phase_plans", lambda *a: None)
