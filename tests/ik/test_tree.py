@@ -1,6 +1,7 @@
 """The whole tree's problem and a limb chain's against a phase's own (docs/design.md,
-section 6, "One program per body", "Limb chains"): the same residuals, Jacobian, starts and limb start on the phase's unknowns,
-nothing moving elsewhere (reference: the phase's own layout, an independent program)."""
+section 6, "One program per body", "Limb chains"): the same residuals, Jacobian, starts and
+limb start on the phase's unknowns, nothing moving elsewhere (reference: the phase's own
+layout, an independent program)."""
 
 import equinox as eqx
 import jax
@@ -135,7 +136,8 @@ def test_the_planned_starts_are_the_phase_s_starts(name, limb):
 
 def test_the_tree_answers_are_the_phase_s_answers():
     """Reachable arm targets, solved on the whole tree's program (two arms) or a limb
-    chain's (one) and on the phase's own: both reach, and the joints agree to 0.1 mm (a converged solve forgets rounding)."""
+    chain's (one) and on the phase's own: both reach, and the joints agree to 0.1 mm (a
+    converged solve forgets rounding)."""
     from diffbody.ik import _reach
 
     body = db.load_body()
