@@ -19,13 +19,12 @@ from .._device_arrays import device_array
 from .._programs import compiled
 from .._spine import spine_angles
 from ..files._targets_file import read_targets
-from ..runs._batches import chunk_rows, map_chunks, row_sharding
+from ..runs._batches import chunk_rows, map_chunks, put_rows, row_sharding, take_rows
 from ._attempt import Attempt, attempt_round, better, phase_steps, round_caps
 from ._constraints import is_constraint, pose_violations
 from ._phases import is_none, phase_layouts, phase_plan, phase_targets_of, uses_limb_start
-from ._plans import make_limb_plan
+from ._plans import limb_plans
 from ._post_projection import finish, keep_mask, needs_projection
-from ._problem import stiffness_of
 from ._reach import ReachResult, check_settings, constrained_targets, reach_status
 from ._targets import Target, TargetSet, resolve_targets
 from ._tree import padded_targets
@@ -216,6 +215,7 @@ def _prepare(
         body, phase_targets, spine=spine, free_root=False, segments=segments, stand=stand
     )
     templates = phase_targets_of(layouts, phase_targets)
+    closed = [uses_limb_start(k, templates[0]) for k in range(len(layouts))]
     n = xyz.shape[0]
     devices = list(jax.local_devices() if devices is None else devices)
     chunk = chunk_rows(chunk_size, n, len(devices))
@@ -225,8 +225,8 @@ def _prepare(
         body=body,
         xyz=xyz,
         templates=templates,
-        plans=_limb_plans(body, layouts, templates),
-        closed=[uses_limb_start(k, templates[0]) for k in range(len(layouts))],
+        plans=limb_plans(body, layouts, templates, closed),
+        closed=closed,
         init=init,
         layouts=layouts,
         starts=starts,
@@ -271,24 +271,6 @@ def _round(s: _Setup, phase: int, rows, poses: Pose | None, x, ks, fresh, cap, l
     if planned is not None:
         a = eqx.tree_at(lambda a: a.err_p, a, a.err_p[:, : s.xyz.shape[1]])
     return x, done, a
-
-
-def _limb_plans(body: Body, layouts: list[Layout], templates: list[TargetSet]) -> list:
-    """Per phase, its limb chain's layout and plan (`make_limb_plan`), or None: the phase
-    compiles its own layout (the trunk's, standing; a chain of several limbs)."""
-    plans = []
-    for k, (layout, ts) in enumerate(zip(layouts, templates)):
-        if layout.standing or body.root_joint != body.default_root_joint:
-            plans.append(None)
-            continue
-        closed = uses_limb_start(k, templates[0])
-        plans.append(make_limb_plan(body, layout, ts, closed, stiffness_of(body, layout)))
-    return plans
-
-
-def _rows(tree, rows):
-    """The given rows of every array of the tree."""
-    return jax.tree.map(lambda a: a[rows], tree)
 
 
 def _empty_result(s: _Setup) -> ReachResult:
@@ -342,8 +324,8 @@ def _solve_rows(s: _Setup) -> tuple[Attempt, np.ndarray, np.ndarray]:
             if best is None:
                 best = a
             else:
-                take = better(a, _rows(best, rows))
-                best = _merge(best, rows[take], _rows(a, take))
+                take = better(a, take_rows(best, rows))
+                best = put_rows(best, rows[take], take_rows(a, take))
             rows = rows[~a.ok & ~far[rows]]
             if tail or not len(rows):
                 break
@@ -371,12 +353,12 @@ def _start(
     going = np.arange(m)
     label = "reach" if phase == 0 and np.all(start == 0) else "reach, further starts"
     for r, cap in enumerate(caps):
-        poses = None if start_poses is None else _rows(start_poses, rows[going])
+        poses = None if start_poses is None else take_rows(start_poses, rows[going])
         g = going
         x_r, done, a = _round(s, phase, rows[g], poses, x[g], ks[g], fresh[g], cap, label)
         x[going], fresh[going] = x_r, False
         spent[going] += a.steps
-        out = a if out is None else _merge(out, going, a)
+        out = a if out is None else put_rows(out, going, a)
         going = going[~done & (r + 1 < rounds[going])]
         if not len(going):
             break
@@ -398,7 +380,7 @@ def _side_by_side(
     pick = np.where(ok.any(1), ok.argmax(1), cost.argmin(1))
     spent = np.cumsum(a.steps.reshape(-1, left), axis=1)
     spent = spent[np.arange(len(rows)), np.where(ok.any(1), pick, left - 1)]
-    chosen = _rows(a, np.arange(len(rows)) * left + pick)
+    chosen = take_rows(a, np.arange(len(rows)) * left + pick)
     return eqx.tree_at(lambda a: a.steps, chosen, spent), spent
 
 
@@ -433,17 +415,6 @@ def _over_poses(s: _Setup, fn, poses: Pose, label: str):
         label=label,
         unit="pose",
     )
-
-
-def _merge(best: Attempt, rows: np.ndarray, new: Attempt) -> Attempt:
-    """A copy of `best` (host arrays) with `rows` replaced by `new`."""
-
-    def put(a, r):
-        a = np.array(a, copy=True)
-        a[rows] = r
-        return a
-
-    return jax.tree.map(put, best, new)
 
 
 def _batch_result(s: _Setup, best: Attempt, steps, beyond) -> ReachResult:

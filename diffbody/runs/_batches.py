@@ -32,6 +32,22 @@ def chunk_rows(chunk_size: int, total: int, n_devices: int = 1) -> int:
     return -(-chunk // n_devices) * n_devices
 
 
+def take_rows(tree, rows):
+    """The given rows of every array of the tree."""
+    return jax.tree.map(lambda a: a[rows], tree)
+
+
+def put_rows(tree, rows: np.ndarray, new):
+    """A copy of `tree` (host arrays) with `rows` replaced by `new`'s."""
+
+    def put(a, r):
+        a = np.array(a, copy=True)
+        a[rows] = r
+        return a
+
+    return jax.tree.map(put, tree, new)
+
+
 def row_sharding(devices: Sequence[jax.Device] | None = None) -> jax.sharding.Sharding:
     """Where a chunk's rows go: split over `devices` (default: the local ones) along the
     leading axis when there are several, else on the one device."""
