@@ -157,10 +157,11 @@ def tree_entries(tree: Layout, phase: Layout) -> np.ndarray | None:
 
 def targets_rows(targets: TargetSet, limb: bool = False) -> tuple[int, int]:
     """The buckets (point rows, axis rows) of a target set: on a limb chain (`limb`) the
-    rows it has, rounded up to a power of two (no axis row without an axis target)."""
+    rows it has, rounded up to a power of two (one axis row at least: a hand's position
+    with or without its direction, one program)."""
     n_p, n_a = len(targets.point_index), len(targets.axis_segment)
     if limb:
-        return bucket(n_p), bucket(n_a) if n_a else 0
+        return bucket(n_p), bucket(n_a)
     return bucket(n_p, POINT_ROWS), bucket(n_a, AXIS_ROWS)
 
 
