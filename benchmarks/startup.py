@@ -27,8 +27,9 @@ jaxpr to MLIR module conversion" lines the seconds spent tracing and lowering.
    Then, in the same process, three arm reaches with other effectors (another wrist, two
    targets, a palm and its direction), another far reach (the left wrist: the trunk joins,
    standing) and one with a segment subset (the left arm: no standing): the programs each
-   compiles (goal 0 for the three: the limbs' phase is one program per body,
-   docs/design.md section 6; the standing phase keeps a program per layout).
+   compiles (goal 0 for the three: the limbs' phase runs on a limb chain's program, one
+   limb, or the whole tree's, several limbs, the problem as data, docs/design.md section 6;
+   the standing phase keeps a program per layout).
 3. `import diffbody` (of which `import jax`), after an untimed `compileall` of the package.
 
 `--repeats N` fresh processes per figure (default 3; --quick 1): the median and the range.
