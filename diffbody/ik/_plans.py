@@ -10,7 +10,7 @@ from .._device_arrays import device_array
 from ._limb_start import limbs
 from ._problem import stiffness_of
 from ._targets import TargetSet
-from ._tree import LIMB_SLOTS, Plan, limb_layout, targets_rows, tree_entries
+from ._tree import LIMB_SLOTS, Plan, limb_layout, padded_targets, targets_rows, tree_entries
 from ._unknowns import Layout
 
 
@@ -73,15 +73,16 @@ def make_limb_plan(
 
 
 def limb_plans(body: Body, layouts: list[Layout], templates: list[TargetSet], closed) -> list:
-    """Per phase of a batch, its limb chain's layout and plan (`make_limb_plan`), or None:
-    the phase compiles its own layout (the trunk's, standing; a chain of several limbs).
-    `closed`: per phase, whether its first start is the closed-form limb start."""
+    """Per phase of a batch, its limb chain's layout and plan (`make_limb_plan`) and its
+    targets padded to their buckets, or None: the phase compiles its own layout (the
+    trunk's, standing; a chain of several limbs). `closed`: per phase, whether its first
+    start is the closed-form limb start."""
     plans = []
     for layout, ts, first in zip(layouts, templates, closed):
-        if layout.standing or body.root_joint != body.default_root_joint:
-            plans.append(None)
-            continue
-        plans.append(make_limb_plan(body, layout, ts, first, stiffness_of(body, layout)))
+        limb = None
+        if not layout.standing and body.root_joint == body.default_root_joint:
+            limb = make_limb_plan(body, layout, ts, first, stiffness_of(body, layout))
+        plans.append(None if limb is None else (*limb, padded_targets(ts, limb=True)))
     return plans
 
 

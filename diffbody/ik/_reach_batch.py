@@ -27,7 +27,6 @@ from ._plans import limb_plans
 from ._post_projection import finish, keep_mask, needs_projection
 from ._reach import ReachResult, check_settings, constrained_targets, reach_status
 from ._targets import Target, TargetSet, resolve_targets
-from ._tree import padded_targets
 from ._unknowns import Layout
 
 
@@ -157,7 +156,7 @@ class _Setup:
     body: Body
     xyz: np.ndarray  # (n, k, 3) m
     templates: list[TargetSet]  # per phase, the targets of one row (positions replaced)
-    plans: list  # per phase, its limb chain's layout and plan, or None (`_limb_plans`)
+    plans: list  # per phase, its limb chain's layout, plan and padded targets, or None
     closed: list[bool]  # per phase, whether its first start is the closed-form limb start
     init: Pose
     layouts: list[Layout]  # the phases
@@ -203,14 +202,15 @@ def _prepare(
         )
     check_settings(starts=starts, max_steps=max_steps, tol_position=tol_position, tol_angle=1.0)
     template, _ = resolve_targets(body, [Target.position(e, np.zeros(3)) for e in effectors])
-    init = body.rest_pose() if init is None else init
+    default_init = init is None
+    init = body.rest_pose() if default_init else init
     constraints = list(constraints)
     if not all(isinstance(c, Target) and is_constraint(c) for c in constraints):
         raise TypeError(
             "solve_reach_batch: constraints must be Target.no_contact / .on_floor / .balance"
         )
     stand = standing and segments is None
-    phase_targets = constrained_targets(body, template, constraints, init, stand)
+    phase_targets = constrained_targets(body, template, constraints, init, stand, default_init)
     layouts = phase_layouts(
         body, phase_targets, spine=spine, free_root=False, segments=segments, stand=stand
     )
@@ -250,9 +250,8 @@ def _round(s: _Setup, phase: int, rows, poses: Pose | None, x, ks, fresh, cap, l
     xyz = s.xyz[rows]
     plan = None
     if planned is not None:
-        layout, plan = planned
+        layout, plan, template = planned
         closed = True  # the plan says (data): one program either way
-        template = padded_targets(template, limb=True)
         P = template.point_xyz.shape[0]
         xyz = np.concatenate([xyz, np.full((len(rows), P - xyz.shape[1], 3), np.nan)], axis=1)
     cap = np.asarray(cap, np.int32)  # data: every round cap shares one program
