@@ -1,6 +1,6 @@
-"""A phase's plan on the whole tree (host, docs/design.md, section 6, "One program per
-body"): which of the tree's unknowns the phase moves, its limbs and effectors, as the data
-of the one compiled round (`_tree`)."""
+"""A phase's plan (host, docs/design.md, section 6, "One program per body", "Limb
+chains"): which unknowns the phase moves, its limbs and effectors, as the data of the one
+compiled round of the whole tree or of a limb chain (`_tree`)."""
 
 import equinox as eqx
 import numpy as np
