@@ -19,7 +19,7 @@ from .._device_arrays import device_array
 from .._programs import compiled
 from .._spine import spine_angles
 from ..files._targets_file import read_targets
-from ..runs._batches import chunk_rows, map_chunks, put_rows, row_sharding, take_rows
+from ..runs._batches import bucket, chunk_rows, map_chunks, put_rows, row_sharding, take_rows
 from ._attempt import Attempt, attempt_round, better, phase_steps, round_caps
 from ._constraints import is_constraint, pose_violations
 from ._phases import is_none, phase_layouts, phase_plan, phase_targets_of, uses_limb_start
@@ -112,7 +112,8 @@ def solve_reach_batch(
         positions: (n, k, 3) metres, or (n, 3) for one effector; or a file of them (CSV
             of x,y,z per effector, a header row optional, or Parquet with pyarrow).
         init: the starting pose of every row (default: the standard position).
-        chunk_size: rows per compiled call (rounded up to a multiple of the device count).
+        chunk_size: rows per compiled call, or for fewer rows the power of two that holds
+            them (rounded up to a multiple of the device count).
         progress: print a progress bar to stderr.
         devices: devices to shard each chunk's rows over (default: `jax.local_devices()`;
             sharding is used when there are several).
@@ -218,7 +219,8 @@ def _prepare(
     closed = [uses_limb_start(k, templates[0]) for k in range(len(layouts))]
     n = xyz.shape[0]
     devices = list(jax.local_devices() if devices is None else devices)
-    chunk = chunk_rows(chunk_size, n, len(devices))
+    # Power-of-two buckets: 17 and 32 rows run one program (a row costs little beside a call).
+    chunk = chunk_rows(chunk_size, bucket(n), len(devices))
     dtype = jnp.result_type(float)
     tols = (device_array(tol_position, dtype), device_array(np.deg2rad(1.0), dtype))
     return _Setup(
@@ -234,7 +236,7 @@ def _prepare(
         tol_position=tol_position,
         tols=tols,
         chunk=chunk,
-        retry_chunk=chunk_rows(min(chunk, RETRY_ROWS), n, len(devices)),
+        retry_chunk=chunk_rows(min(chunk, RETRY_ROWS), bucket(n), len(devices)),
         sharding=row_sharding(devices),
         progress=progress,
     )

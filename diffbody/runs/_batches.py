@@ -25,10 +25,9 @@ def bucket(n: int, least: int = 1) -> int:
 
 
 def chunk_rows(chunk_size: int, total: int, n_devices: int = 1) -> int:
-    """Rows per compiled call: the power of two that holds `total` rows, at most
-    `chunk_size`, rounded up to a multiple of the device count. In buckets: a batch of 17
-    rows and one of 32 run one compiled program (the pad rows repeat the last row)."""
-    chunk = max(1, min(bucket(int(total)), int(chunk_size)))
+    """Rows per compiled call: `chunk_size`, at most `total`, at least one, rounded up to a
+    multiple of the device count."""
+    chunk = max(1, min(int(chunk_size), int(total)))
     return -(-chunk // n_devices) * n_devices
 
 
