@@ -30,30 +30,15 @@ from ._targets import Target, TargetSet, resolve_targets
 from ._unknowns import Layout
 
 
-def _round_rows(
-    body,
-    layout,
-    inits,
-    template: TargetSet,
-    xyz,
-    x,
-    ks,
-    fresh,
-    cap,
-    tol_pos,
-    tol_ang,
-    closed,
-    plan=None,
-):
+def _round_rows(body, layout, inits, template, xyz, x, ks, fresh, cap, tols, closed, plan=None):
     """`attempt_round` vmapped over rows: their start poses (or one `Pose` shared by every
     row: then what depends on it alone, the start's walk and problem, is computed once per
     chunk, not per row), target positions (batch, k, 3), free vectors to go on from, start
-    indices and whether each begins its start. `plan`: a limb chain's (`_tree`), shared by
-    every row."""
+    indices and whether each begins its start; `tols`: (m, rad). `plan`: a limb chain's
+    (`_tree`), shared by every row."""
 
     def one(init, p, x, k, f):
         targets = eqx.tree_at(lambda t: t.point_xyz, template, p)
-        tols = (tol_pos, tol_ang)
         return attempt_round(body, layout, init, targets, x, k, f, cap, *tols, closed, plan)
 
     shared = jnp.ndim(inits.position) == 1
@@ -259,7 +244,7 @@ def _round(s: _Setup, phase: int, rows, poses: Pose | None, x, ks, fresh, cap, l
     cap = np.asarray(cap, np.int32)  # data: every round cap shares one program
 
     def fn(p, xyz, x, k, f):
-        args = (s.body, layout, p, template, xyz, x, k, f, cap, *s.tols, closed, plan)
+        args = (s.body, layout, p, template, xyz, x, k, f, cap, s.tols, closed, plan)
         return _round_rows_jit(*args)
 
     chunk = s.chunk if 2 * len(rows) > s.chunk else s.retry_chunk
@@ -270,7 +255,8 @@ def _round(s: _Setup, phase: int, rows, poses: Pose | None, x, ks, fresh, cap, l
     else:
         x, done, a = map_chunks(fn, (poses,) + arrays, **opts)
     if planned is not None:
-        a = eqx.tree_at(lambda a: a.err_p, a, a.err_p[:, : s.xyz.shape[1]])
+        errors = (a.err_p[:, : s.xyz.shape[1]], a.err_a[:, :0])
+        a = eqx.tree_at(lambda a: (a.err_p, a.err_a), a, errors)
     return x, done, a
 
 
@@ -290,7 +276,7 @@ def _empty_result(s: _Setup) -> ReachResult:
         jnp.zeros(1, int),
         jnp.ones(1, bool),
         s.max_steps,
-        *s.tols,
+        s.tols,
         False,
     )
     empty = jax.tree.map(lambda a: np.zeros((0,) + a.shape[1:], a.dtype), shapes)

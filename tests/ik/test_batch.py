@@ -114,6 +114,23 @@ def test_another_limb_compiles_nothing(male50, batch):
     np.testing.assert_allclose(arm.residuals, batch.residuals, atol=1e-6)
 
 
+def test_rows_the_limbs_miss_go_on_to_the_trunk(male50, batch):
+    """The limbs' phase on a limb chain, then the trunk's on its own layout for the row the
+    arm cannot reach: both phases' attempts merge (regression: the limb chain's pad axis
+    row once broke the merge), the near row as the arm alone solves it, the far one
+    reached by bending the spine."""
+    far = ROWS[0] + [0.3, 0.0, -0.2]
+    out = solve_reach_batch(
+        male50, "left_hand.palm", np.stack([ROWS[0], far]), chunk_size=CHUNK,
+        progress=False, starts=1, standing=False,
+    )  # fmt: skip
+    assert out.residuals.shape == (2, 1) and out.reached.all(), out.residuals
+    near, trunk = (np.asarray(out.pose.spine_target[i]) for i in (0, 1))
+    rest = np.asarray(db.spine_angles(male50, male50.spine, male50.rest_pose()).sum(0))
+    np.testing.assert_allclose(near, rest, atol=1e-9)  # the arm alone
+    assert np.abs(trunk - rest).max() > np.deg2rad(5.0)  # the spine bent
+
+
 @settings(max_examples=50, deadline=None)
 @given(st.integers(0, 2**16 - 1), st.integers(0, 3))
 def test_the_host_verdicts_are_the_compiled_ones(bits, n_kinds):
