@@ -325,11 +325,11 @@ def walk_links(
     R_socket_base: Float[Array, "k 3 3"],
     tau: Float[Array, " k"],
     bases: Links,
-    segments: Int[Array, " k"] | None = None,
+    segments: np.ndarray | Int[Array, " k"] | None = None,
 ) -> Links:
     """Forward kinematics of a chain's segments (chain order) from their base frames in
     their sockets and their twists, hanging from `bases` (one walk). `segments`: the global
-    segment of each chain slot when they are data (a limb chain, `ik._tree`), else the
+    segment of each chain slot (host, or data on a limb chain, `ik._tree`); by default the
     chain's own."""
     seg = np.asarray(chain.segments, int) if segments is None else segments
     R_local = matmul3(body.R_parent_socket[seg], R_socket_base)

@@ -120,17 +120,6 @@ def as_slots(slots) -> np.ndarray | Array:
     return slots if isinstance(slots, jax.Array) else np.asarray(slots, np.int32)
 
 
-def slot_table(lay: Layout) -> np.ndarray:
-    """(m + n_bases,) the global segment of each slot (chain, then bases; -1 the world)."""
-    return np.asarray(lay.chain.segments + lay.bases, int)
-
-
-def segments_of(lay: Layout, slots) -> np.ndarray | Array:
-    """The global segment of each slot (chain or base): NumPy for NumPy slots, else a
-    gather in the program."""
-    return take(np.maximum(slot_table(lay), 0), slots)
-
-
 def _ancestry(lay: Layout, slots) -> tuple[np.ndarray | Array, np.ndarray | Array]:
     """(k, m) masks over the chain: chain segment i on point k's path to the top (itself
     included), and i being point k's own segment; zero rows for points on bases."""

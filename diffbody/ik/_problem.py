@@ -14,6 +14,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._body import Body, Pose
+from .._device_arrays import take
 from .._kinematics import (
     Links,
     full_chain,
@@ -27,7 +28,7 @@ from .._posture import angles_of_rotation
 from .._rotations import exp_rotvec, rot_z, safe_norm
 from .._spine import spine_angles
 from ._constraints import WEIGHT, constraint_rows
-from ._points import segments_of, socket_state, tree_points
+from ._points import socket_state, tree_points
 from ._targets import TargetSet
 from ._tree import Plan, effector_rows
 from ._unknowns import Layout, into_cone, squash, unsquash
@@ -135,7 +136,7 @@ class Problem(eqx.Module):
                 bases,
                 world,
             )
-        links = walk_links(b, lay.chain, R, tau, bases, self.plan and self.plan.chain)
+        links = walk_links(b, lay.chain, R, tau, bases, self.segments())
         if lay.full:
             links = global_order(lay, links)
             links = reroot(b, links, position)
@@ -161,7 +162,7 @@ class Problem(eqx.Module):
                 offsets.append(o)
                 heights.append(h)
             n_a = len(lay.axis_slot)
-            axis_seg = segments_of(lay, lay.axis_slot)
+            axis_seg = take(self.slot_segments(), lay.axis_slot)
             slots.append(np.asarray(lay.axis_slot * 2, int))
             offsets += [targets.axis_local, jnp.zeros((n_a, 3), x.dtype)]
             heights += [b.lengths[axis_seg], jnp.zeros(n_a, x.dtype)]
