@@ -47,7 +47,7 @@ def limbs_problem(body, xyz0):
     targets' arrays of that target (solve_reach's own resolution and phases)."""
     import diffbody as db
     from diffbody.ik._phases import phase_layouts
-    from diffbody.ik._targets import resolve_targets
+    from diffbody.problem._targets import resolve_targets
 
     ts, _ = resolve_targets(body, [db.Target.position(EFFECTOR, xyz0)])
     layouts = phase_layouts(body, [ts], spine=True, free_root=False, segments=None)

@@ -2,8 +2,8 @@
 
 The core (this folder's modules) holds the body, its one tree walk, the kinematics, the
 orientation conventions, limits, postures, local frames, the spine and rendering; each family
-of work is a sub-package: `files`, `anthropometry`, `contact`, `ik`, `mocap`, `clouds`, `images`,
-`export`, `viewer` and `cli` (docs/design.md, "Families")."""
+of work is a sub-package: `files`, `runs`, `anthropometry`, `contact`, `problem`, `ik`, `mocap`,
+`clouds`, `images`, `export`, `viewer` and `cli` (docs/design.md, "Families")."""
 
 import importlib
 from typing import TYPE_CHECKING

@@ -329,7 +329,7 @@ def walk_links(
 ) -> Links:
     """Forward kinematics of a chain's segments (chain order) from their base frames in
     their sockets and their twists, hanging from `bases` (one walk). `segments`: the global
-    segment of each chain slot (host, or data on a limb chain, `ik._tree`); by default the
+    segment of each chain slot (host, or data on a limb chain, `problem._tree`); by default the
     chain's own."""
     seg = np.asarray(chain.segments, int) if segments is None else segments
     R_local = matmul3(body.R_parent_socket[seg], R_socket_base)

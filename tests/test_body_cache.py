@@ -13,9 +13,9 @@ from hypothesis import strategies as st
 
 from diffbody import _body_cache
 from diffbody._body_cache import RANGES, BodyCache, body_key
-from diffbody.ik._constraints import GEOMETRY, resolve_constraints
-from diffbody.ik._targets import Target
-from diffbody.ik._tree import tree_layout
+from diffbody.problem._constraints import GEOMETRY, resolve_constraints
+from diffbody.problem._targets import Target
+from diffbody.problem._tree import tree_layout
 
 
 def _longer(body, segment: int = 3, by: float = 0.01):

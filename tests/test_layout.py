@@ -27,6 +27,7 @@ ORDER = (
     "runs",
     "anthropometry",
     "contact",
+    "problem",
     "ik",
     "mocap",
     "clouds",

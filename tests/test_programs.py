@@ -13,7 +13,7 @@ from diffbody import _programs
 from diffbody.ik._attempt import attempt_round
 from diffbody.ik._phases import phase_layouts
 from diffbody.ik._reach import constrained_targets
-from diffbody.ik._targets import Target, resolve_targets
+from diffbody.problem._targets import Target, resolve_targets
 
 
 def _standing_round(body):

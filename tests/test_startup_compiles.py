@@ -16,9 +16,9 @@ import diffbody as db
 from diffbody._body_cache import BodyCache
 from diffbody._memory_maps import BACKEND_COMPILE
 from diffbody.contact import sole_spheres
-from diffbody.ik import _constraints
-from diffbody.ik._constraints import GEOMETRY, resolve_constraints
-from diffbody.ik._targets import _floor_jit, resolve_targets, standing
+from diffbody.problem import _constraints
+from diffbody.problem._constraints import GEOMETRY, resolve_constraints
+from diffbody.problem._targets import _floor_jit, resolve_targets, standing
 
 FEET = ("left_foot", "right_foot")
 

@@ -146,7 +146,7 @@ def body_from_args(args):
 
 def check_names(body, effectors: list[str], segments: list[str] | None) -> None:
     """Unknown effector or segment names, reported with the option before any solve."""
-    from ..ik._targets import Target, resolve_targets
+    from ..problem._targets import Target, resolve_targets
 
     hint = " (diffbody info --names lists them)"
     try:
@@ -164,8 +164,8 @@ def effector_chain(body, effectors: list[str]) -> list[str]:
     """The segments whose joints move the effectors, top-down (every segment for the center
     of gravity or a body re-rooted elsewhere); the whole body's placement never moves in a
     reach, so it is not among them."""
-    from ..ik._targets import point_index
-    from ..ik._unknowns import segments_on_path
+    from ..problem._targets import point_index
+    from ..problem._unknowns import segments_on_path
 
     on = segments_on_path(body, [point_index(body, e) for e in effectors])
     top_down = sorted(on - {0}, key=lambda s: (len(body.path_to_top(s)), s))

@@ -57,7 +57,7 @@ def _reach(args) -> int:
     import numpy as np
 
     from ..ik._reach import ReachStatus, solve_reach
-    from ..ik._targets import Target
+    from ..problem._targets import Target
 
     check_output("--out", args.out)
     check_pose_output("--out", args.out)

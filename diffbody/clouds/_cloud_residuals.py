@@ -18,9 +18,9 @@ from jaxtyping import Array, Float, Int
 
 from .._body import Body, Pose
 from ..anthropometry._scaling import N_GROUPS, log_scaled
-from ..ik._points import tree_points
-from ..ik._problem import Problem, make_problem
-from ..ik._unknowns import Layout, whole_tree_layout
+from ..problem._points import tree_points
+from ..problem._problem import Problem, make_problem
+from ..problem._unknowns import Layout, whole_tree_layout
 
 FIT_NAMES = ("pose", "lengths", "radii")
 SINKHORN = 30  # rounds of normalisation of one soft assignment

@@ -8,8 +8,8 @@ from jaxtyping import Array
 
 from .._body import Body, Pose
 from .._kinematics import forward
-from ..ik._problem import make_problem
-from ..ik._unknowns import whole_tree_layout
+from ..problem._problem import make_problem
+from ..problem._unknowns import whole_tree_layout
 
 
 # --- checks --------------------------------------------------------------------------------

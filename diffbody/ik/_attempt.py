@@ -22,13 +22,13 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._body import Body, Pose
 from .._solver import FitStatus, StopAt, least_squares_solver, solve, tolerance
-from ._constraints import WEIGHT
+from ..problem._constraints import WEIGHT
+from ..problem._problem import Problem, make_problem
+from ..problem._targets import TargetSet, mask_invalid
+from ..problem._tree import Plan
+from ..problem._unknowns import Layout
 from ._limb_start import limb_start
-from ._problem import Problem, make_problem
 from ._starts import nth_start
-from ._targets import TargetSet, mask_invalid
-from ._tree import Plan
-from ._unknowns import Layout
 
 # Steps per round. From the closed-form limb start, 95 % of the left arm's palm targets
 # are reached within 8 steps and 99.5 % within 30 (benchmarks/solvers.py): a round of 10

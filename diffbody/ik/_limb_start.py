@@ -38,9 +38,9 @@ from .._body import Body
 from .._device_arrays import take
 from .._kinematics import feature_points, socket_frames_from_swing
 from .._rotations import exp_rotvec, safe_norm, swing_rotation
-from ._problem import Problem
-from ._targets import TargetSet
-from ._unknowns import Layout, into_cone, point_segment, squash, unsquash
+from ..problem._problem import Problem
+from ..problem._targets import TargetSet
+from ..problem._unknowns import Layout, into_cone, point_segment, squash, unsquash
 
 
 @dataclass(frozen=True)

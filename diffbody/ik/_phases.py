@@ -28,6 +28,10 @@ from .._body_cache import RANGES, BodyCache
 from .._kinematics import Links, forward
 from .._programs import compiled, is_traced
 from .._spine import spine_angles
+from ..problem._problem import stiffness_of
+from ..problem._targets import TargetSet
+from ..problem._tree import padded_targets, targets_rows, tree_layout
+from ..problem._unknowns import Layout, make_layout, point_segment
 from ._attempt import (
     Attempt,
     assess,
@@ -39,10 +43,6 @@ from ._attempt import (
     solve_free,
 )
 from ._plans import fits_tree, make_limb_plan, make_plan
-from ._problem import stiffness_of
-from ._targets import TargetSet
-from ._tree import padded_targets, targets_rows, tree_layout
-from ._unknowns import Layout, make_layout, point_segment
 
 
 def is_none(x) -> bool:

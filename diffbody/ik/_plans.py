@@ -7,11 +7,18 @@ import numpy as np
 
 from .._body import Body
 from .._device_arrays import device_array
+from ..problem._problem import stiffness_of
+from ..problem._targets import TargetSet
+from ..problem._tree import (
+    LIMB_SLOTS,
+    Plan,
+    limb_layout,
+    padded_targets,
+    targets_rows,
+    tree_entries,
+)
+from ..problem._unknowns import Layout
 from ._limb_start import limbs
-from ._problem import stiffness_of
-from ._targets import TargetSet
-from ._tree import LIMB_SLOTS, Plan, limb_layout, padded_targets, targets_rows, tree_entries
-from ._unknowns import Layout
 
 
 def fits_tree(body: Body, targets: TargetSet) -> bool:

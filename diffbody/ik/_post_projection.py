@@ -11,7 +11,7 @@ from .._body import Body, Pose
 from .._kinematics import forward
 from .._limits import within_limits
 from .._posture import pose_from_joints
-from ._unknowns import Layout, point_segment
+from ..problem._unknowns import Layout, point_segment
 
 # A reset that breaks a limit by more than this (rad) is refused: the posture from joints
 # rounds, and a twist exactly at its limit must stay admissible.

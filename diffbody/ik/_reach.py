@@ -20,19 +20,19 @@ from .._body_cache import BodyCache
 from .._device_arrays import device_array
 from .._programs import compiled
 from .._statuses import ReachStatus
-from ._attempt import Attempt
-from ._constraints import (
+from ..problem._constraints import (
     GEOMETRY,
     is_constraint,
     pose_violations,
     resolve_constraints,
     target_key,
 )
+from ..problem._targets import Target, TargetSet, flatten_targets, resolve_targets
+from ..problem._targets import standing as standing_targets
+from ..problem._tree import padded_targets, targets_rows
+from ._attempt import Attempt
 from ._phases import is_none, is_traced, phase_layouts, phase_plans, solve_host, solve_traced
 from ._post_projection import finish, keep_mask, needs_projection
-from ._targets import Target, TargetSet, flatten_targets, resolve_targets
-from ._targets import standing as standing_targets
-from ._tree import padded_targets, targets_rows
 
 # solve_reach returns device arrays; solve_reach_batch returns host (numpy) arrays with a
 # leading batch axis.

@@ -19,15 +19,15 @@ from .._device_arrays import device_array
 from .._programs import compiled
 from .._spine import spine_angles
 from ..files._targets_file import read_targets
+from ..problem._constraints import is_constraint, pose_violations
+from ..problem._targets import Target, TargetSet, resolve_targets
+from ..problem._unknowns import Layout
 from ..runs._batches import bucket, chunk_rows, map_chunks, put_rows, row_sharding, take_rows
 from ._attempt import Attempt, attempt_round, better, phase_steps, round_caps
-from ._constraints import is_constraint, pose_violations
 from ._phases import is_none, phase_layouts, phase_plan, phase_targets_of, uses_limb_start
 from ._plans import limb_plans
 from ._post_projection import finish, keep_mask, needs_projection
 from ._reach import ReachResult, check_settings, constrained_targets, reach_status
-from ._targets import Target, TargetSet, resolve_targets
-from ._unknowns import Layout
 
 
 def _round_rows(body, layout, inits, template, xyz, x, ks, fresh, cap, tols, closed, plan=None):

@@ -9,9 +9,9 @@ import jax
 from jaxtyping import ArrayLike
 
 from .._body import Body, Pose
+from ..problem._targets import Target
 from ..runs._batch_run import BatchRun, stream_reach_batch
 from ._reach_batch import check_batch, solve_reach_batch
-from ._targets import Target
 
 
 def run_reach_batch(

@@ -12,7 +12,7 @@ from jaxtyping import Array, Float
 from .._body import Body
 from ..anthropometry._scaling import N_GROUPS
 from ..files._markerset_file import MarkerSet
-from ..ik._unknowns import Layout, make_layout
+from ..problem._unknowns import Layout, make_layout
 
 
 # --- the unknowns ------------------------------------------------------------------------------

@@ -1,11 +1,11 @@
-"""Motion-capture markers on the walked body: the point kernel (`ik._points.tree_points`,
+"""Motion-capture markers on the walked body: the point kernel (`problem._points.tree_points`,
 docs/design.md, sections 6 and 7) at the markers' offsets, each turned by its share of its
 segment's twist at its own height."""
 
 from jaxtyping import Array, Float
 
-from ..ik._points import tree_points
-from ..ik._problem import Problem
+from ..problem._points import tree_points
+from ..problem._problem import Problem
 from ._marker_layout import MocapLayout
 
 

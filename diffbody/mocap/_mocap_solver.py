@@ -17,7 +17,7 @@ from jaxtyping import Array, ArrayLike
 from .._programs import compiled
 from .._solver import least_squares_solver, tolerance
 from ..files._marker_trial import MarkerTrial
-from ..ik._problem import make_problem
+from ..problem._problem import make_problem
 
 MARKER_SD = 0.01  # m: a marker's rows are its error in units of this
 PULL = 1e-3  # per unit of a free variable: an unobserved direction weighs as 10 um of error

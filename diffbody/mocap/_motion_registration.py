@@ -21,7 +21,7 @@ from jaxtyping import Array, Float
 
 from ..files._marker_trial import MarkerTrial
 from ..files._markerset_file import MarkerSet
-from ..ik._problem import Problem
+from ..problem._problem import Problem
 from ._marker_layout import MocapLayout
 from ._marker_points import tree_markers
 from ._mocap_solver import MIN_MARKERS, PULL, robust_rows

@@ -31,7 +31,7 @@ from ..anthropometry._scale_to import LENGTHS
 from ..anthropometry._scaling import log_scaled, per_segment
 from ..files._marker_trial import MarkerTrial
 from ..files._markerset_file import MarkerSet
-from ..ik._problem import Problem, make_problem
+from ..problem._problem import Problem, make_problem
 from ._marker_layout import MocapLayout, mocap_layout, rigid_start
 from ._marker_points import model_markers, tree_markers
 from ._markerset import MarkerWarning, match_markers, scale_offsets

@@ -25,6 +25,7 @@ def test_import_diffbody_loads_no_family_and_no_matplotlib():
         "diffbody.mocap",
         "diffbody.clouds",
         "diffbody.ik",
+        "diffbody.problem",
         "optimistix",
         "matplotlib",
     ):

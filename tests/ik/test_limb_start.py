@@ -10,8 +10,8 @@ from limb_poses import random_limb_angles
 import diffbody as db
 from diffbody.ik._limb_start import limb_start, limbs
 from diffbody.ik._phases import beyond_bound, out_of_reach, phase_layouts
-from diffbody.ik._problem import make_problem
-from diffbody.ik._targets import resolve_targets
+from diffbody.problem._problem import make_problem
+from diffbody.problem._targets import resolve_targets
 
 
 @pytest.mark.parametrize(

@@ -12,10 +12,10 @@ import diffbody as db
 from diffbody.ik._attempt import start_vector
 from diffbody.ik._phases import phase_layouts, phase_plans, phase_targets_of
 from diffbody.ik._plans import make_limb_plan, make_plan
-from diffbody.ik._problem import make_problem, stiffness_of
 from diffbody.ik._reach import constrained_targets
-from diffbody.ik._targets import Target, mask_invalid, resolve_targets
-from diffbody.ik._tree import padded_targets, targets_rows, tree_entries, tree_layout
+from diffbody.problem._problem import make_problem, stiffness_of
+from diffbody.problem._targets import Target, mask_invalid, resolve_targets
+from diffbody.problem._tree import padded_targets, targets_rows, tree_entries, tree_layout
 
 CASES = {
     "palm": [Target.position("left_hand.palm", (0.35, 0.3, 1.1))],

@@ -21,10 +21,10 @@ from diffbody.files._marker_files import c3d_screen_axes, read_c3d, read_markers
 from diffbody.files._marker_trial import LAB_AXES, MarkerFileError
 from diffbody.files._markerset_file import load_markerset
 from diffbody.files._trc import read_trc
-from diffbody.ik._problem import make_problem
 from diffbody.mocap._marker_layout import mocap_layout
 from diffbody.mocap._markerset import world_markers
 from diffbody.mocap._motion_fit import fit_motion
+from diffbody.problem._problem import make_problem
 
 ezc3d = pytest.importorskip("ezc3d")
 

@@ -30,8 +30,6 @@ from diffbody.files._data_files import data_file
 from diffbody.files._marker_trial import MarkerTrial
 from diffbody.files._markerset_file import load_markerset
 from diffbody.files._motion_files import read_mot
-from diffbody.ik._points import walk_points
-from diffbody.ik._problem import make_problem
 from diffbody.mocap._marker_layout import mocap_layout, rigid_fit, rotation_vector
 from diffbody.mocap._marker_points import model_markers, tree_markers
 from diffbody.mocap._markerset import MarkerWarning, scale_offsets, world_markers
@@ -41,6 +39,8 @@ from diffbody.mocap._motion_limits import MOTION_RANGES, motion_limits
 from diffbody.mocap._motion_registration import MOTION_FRAMES
 from diffbody.mocap._static_fit import PRIOR_MEASUREMENTS, population_prior, scale_and_register
 from diffbody.mocap._trial_outputs import save_angles, save_coordinates, scaled_body
+from diffbody.problem._points import walk_points
+from diffbody.problem._problem import make_problem
 
 N_FRAMES = 4
 NOISE = 0.005  # m, per coordinate

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 import diffbody as db
 from diffbody.contact import sole_spheres, support_edges
 from diffbody.contact._support import inside_distance
-from diffbody.ik._constraints import resolve_constraints
+from diffbody.problem._constraints import resolve_constraints
 
 FEET = ("left_foot", "right_foot")
 ARM = ("left_clavicle", "left_upper_arm", "left_forearm", "left_hand")
@@ -207,7 +207,7 @@ def test_each_environment_keeps_its_own_segments_and_margin(male50):
     """Regression: merged environments once applied every target's largest margin to every
     named segment, so an arm's 1 cm clearance from a post lifted the planted feet 1 cm off
     the floor (CONSTRAINT_VIOLATED). Each segment keeps each shape's own target's margin."""
-    from diffbody.ik._constraints import OFF, resolve_constraints
+    from diffbody.problem._constraints import OFF, resolve_constraints
 
     post = db.Environment.of(boxes=[((0.28, 0.13, 0.8), (0.03, 0.05, 0.8))])
     targets = [

@@ -1,4 +1,4 @@
-"""The one point kernel (diffbody.ik._points): its closed-form Jacobian against autodiff
+"""The one point kernel (diffbody.problem._points): its closed-form Jacobian against autodiff
 through the walk (float64, to 1e-10) on random poses, at the poles of the sockets (the
 standard position: every hanging limb and the spine) and at the limits (free variables at
 their bounds, where the bounded maps are flat); reverse mode and finite differences of
@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 import diffbody as db
-from diffbody.ik._points import tree_points, walk_points
-from diffbody.ik._problem import make_problem
-from diffbody.ik._targets import resolve_targets
-from diffbody.ik._unknowns import make_layout, whole_tree_layout
+from diffbody.problem._points import tree_points, walk_points
+from diffbody.problem._problem import make_problem
+from diffbody.problem._targets import resolve_targets
+from diffbody.problem._unknowns import make_layout, whole_tree_layout
 
 
 def _points(body, lay, rng, k=12):
