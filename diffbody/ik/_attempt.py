@@ -66,8 +66,8 @@ def _residuals(x: Array, args: tuple[Problem, TargetSet, StopAt]) -> Array:
 def _close_enough(
     targets: TargetSet, tol_position: Array, tol_angle: Array, n_constraint_rows: int
 ) -> Array:
-    """Per target and constraint row, the weighted residual below which the solve may stop
-    early."""
+    """Per target and constraint row (the first rows of `Problem.rows`), the weighted
+    residual below which the solve may stop early."""
     p = jnp.repeat(targets.point_weight * tol_position, 3)
     a = jnp.repeat(targets.axis_weight * tol_angle, 3)
     c = jnp.full(n_constraint_rows, WEIGHT * tol_position)
@@ -153,9 +153,7 @@ def solve_free(
     x0 = jnp.where(fresh, x0, x)
     if not layout.n_free:
         return x0, jnp.asarray(0), jnp.asarray(True)
-    n_rows = jax.eval_shape(problem.residuals, x0, safe).shape[0]
-    n_targets = safe.point_weight.shape[0] + safe.axis_weight.shape[0]
-    n_constraint_rows = n_rows - layout.n_free - 3 * n_targets
+    n_constraint_rows = jax.eval_shape(problem.rows, x0, safe).constraints.shape[0]
     bounds = _close_enough(safe, tol_position, tol_angle, n_constraint_rows)
     cap = jnp.asarray(max_steps if cap is None else cap)
     args = (problem, safe, StopAt(bounds, cap))

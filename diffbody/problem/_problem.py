@@ -7,6 +7,8 @@ unknown, the bounds, the pull toward the start) is computed once, when the probl
 walks them once (`walk_links`) and compares the effectors with the targets.
 """
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -14,7 +16,6 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._body import Body, Pose
-from .._device_arrays import take
 from .._kinematics import (
     Links,
     full_chain,
@@ -28,9 +29,10 @@ from .._posture import angles_of_rotation
 from .._rotations import exp_rotvec, rot_z, safe_norm
 from .._spine import spine_angles
 from ._constraints import WEIGHT, constraint_rows
-from ._points import socket_state, tree_points
+from ._points import socket_state
 from ._targets import TargetSet
-from ._tree import Plan, effector_rows
+from ._terms import cog_term, place, sphere_term, target_terms
+from ._tree import Plan
 from ._unknowns import Layout, into_cone, squash, unsquash
 
 # The pull toward the start, per unit of the free variables: it settles the redundant
@@ -52,6 +54,15 @@ def _gather_or(values: Array, index: np.ndarray, mask: np.ndarray, default: Arra
     if values.shape[0] == 0:
         return default
     return jnp.where(mask, values[np.where(mask, index, 0)], default)
+
+
+class Rows(NamedTuple):
+    """A problem's weighted residual rows, by term (`Problem.rows`)."""
+
+    points: Array  # (3 n_p,)
+    axes: Array  # (3 n_a,)
+    constraints: Array  # (c,)
+    pull: Array  # (n_free,)
 
 
 class Problem(eqx.Module):
@@ -147,67 +158,20 @@ class Problem(eqx.Module):
     def placed(self, x: Array, targets: TargetSet) -> tuple[Array, Array, Array, Array | None]:
         """World positions of the point effectors (n_p, 3), the world directions of the
         axis targets' axes (n_a, 3), and what the constraints read: the centres of their
-        spheres (k, 3) and the centre of gravity (3,) (None without balance). One call of
-        the point kernel (`tree_points`): the center of gravity as the mass-weighted mean
-        of the centroids, an axis as the difference of a point at its local direction (the
-        segment's whole twist) and the segment's proximal joint."""
-        lay, b = self.layout, self.body
+        spheres (k, 3) and the centre of gravity (3,) (None without balance). Each is a
+        term of the one call of the point kernel (`_terms`)."""
         c = targets.constraints
-        cog = b.n_joints + len(b.feature_names)
-        slots, offsets, heights = [], [], []
-        if self.plan is None:
-            for index, slot in zip(lay.points, lay.point_slot):
-                s, o, h = _effector_point(self, index, slot)
-                slots.append(np.asarray(s, int))
-                offsets.append(o)
-                heights.append(h)
-            n_a = len(lay.axis_slot)
-            axis_seg = take(self.slot_segments(), lay.axis_slot)
-            slots.append(np.asarray(lay.axis_slot * 2, int))
-            offsets += [targets.axis_local, jnp.zeros((n_a, 3), x.dtype)]
-            heights += [b.lengths[axis_seg], jnp.zeros(n_a, x.dtype)]
-        else:
-            n_a = targets.axis_weight.shape[0]
-            for s, o, h in effector_rows(b, self.slot_of(), self.plan, targets):
-                slots.append(s)
-                offsets.append(o)
-                heights.append(h)
-        n_sph = 0 if c is None else len(c.spheres)
-        if n_sph:
-            sph = np.asarray(c.spheres, int)
-            seg = np.asarray(b.sphere_segment, int)[sph]
-            slots.append(np.asarray([lay.read_slot[s] for s in seg], int))
-            offsets.append(b.sphere_origins[sph])
-            heights.append(b.sphere_origins[sph, 2])
-        balance = c is not None and c.balance
-        if balance:
-            slots.append(np.asarray(_whole_tree_slots(self), int))
-            offsets.append(b.centroids)
-            heights.append(b.centroids[:, 2])
-        if not sum(len(s) for s in slots):
-            empty = jnp.zeros((0, 3), x.dtype)
-            return empty, empty, empty, None
-        offsets = jnp.concatenate([jnp.asarray(o, x.dtype).reshape(-1, 3) for o in offsets])
-        heights = jnp.concatenate([jnp.asarray(h, x.dtype).reshape(-1) for h in heights])
-        concat = np.concatenate if self.plan is None else jnp.concatenate
-        q = tree_points(concat(slots), self, b.lengths, offsets, heights, x)
-        points, at = [], 0
-        if self.plan is not None:
-            at = targets.point_weight.shape[0]
-            points.append(q[:at])
-        for index in lay.points:
-            if index == cog:
-                points.append(_mass_mean(b, q[at : at + b.n_segments])[None])
-                at += b.n_segments
-            else:
-                points.append(q[at : at + 1])
-                at += 1
-        p = jnp.concatenate(points) if points else jnp.zeros((0, 3), x.dtype)
-        axes = q[at : at + n_a] - q[at + n_a : at + 2 * n_a]
-        at += 2 * n_a
-        centers = q[at : at + n_sph]
-        at += n_sph
-        return p, axes, centers, _mass_mean(b, q[at:]) if balance else None
+        points, axes = target_terms(self, targets)
+        terms = {("point", i): t for i, t in enumerate(points)} | {"axes": axes}
+        if c is not None and c.spheres:
+            terms["spheres"] = sphere_term(self, c.spheres)
+        if c is not None and c.balance:
+            terms["cog"] = cog_term(self)
+        v = place(self, x, terms)
+        empty = jnp.zeros((0, 3), x.dtype)
+        p = [v[("point", i)] for i in range(len(points))]
+        p = jnp.concatenate(p) if p else empty
+        return p, v["axes"], v.get("spheres", empty), v.get("cog")
 
     def effectors(self, x: Array, targets: TargetSet) -> tuple[Array, Array]:
         """The point effectors (n_p, 3) and axis directions (n_a, 3) (`placed`)."""
@@ -223,18 +187,20 @@ class Problem(eqx.Module):
         rows, worst = constraint_rows(c, centers, radii, cog)
         return p, axes, rows, worst
 
-    def residuals(self, x: Array, targets: TargetSet) -> Array:
-        """Weighted residuals: points (m), axes (chord lengths ~ rad), the constraints (m,
-        `WEIGHT` times), the pull toward the start; one flat vector."""
+    def rows(self, x: Array, targets: TargetSet) -> "Rows":
+        """The weighted residuals by term: points (m), axes (chord lengths ~ rad), the
+        constraints (m, `WEIGHT` times), the pull toward the start."""
         p, axes, rows, _ = self.constraint_rows(x, targets)
-        return jnp.concatenate(
-            [
-                (targets.point_weight[:, None] * (p - targets.point_xyz)).ravel(),
-                (targets.axis_weight[:, None] * (axes - targets.axis_direction)).ravel(),
-                WEIGHT * rows,
-                self.pull * (x - self.x0),
-            ]
+        return Rows(
+            points=(targets.point_weight[:, None] * (p - targets.point_xyz)).ravel(),
+            axes=(targets.axis_weight[:, None] * (axes - targets.axis_direction)).ravel(),
+            constraints=WEIGHT * rows,
+            pull=self.pull * (x - self.x0),
         )
+
+    def residuals(self, x: Array, targets: TargetSet) -> Array:
+        """The weighted residuals (`rows`), one flat vector."""
+        return jnp.concatenate(self.rows(x, targets))
 
     def errors(self, x: Array, targets: TargetSet) -> tuple[Array, Array, Array]:
         """Distances of the point targets (m), angles of the axis targets (rad) and each
@@ -281,40 +247,6 @@ class Problem(eqx.Module):
         if spine_target is None:
             spine_target = init.spine_target
         return Pose(position=position, angles=angles, spine_target=spine_target)
-
-
-def _effector_point(problem: Problem, index: int, slot: int) -> tuple[list[int], Array, Array]:
-    """The kernel's points of one point effector (into [joints, features, center of
-    gravity]) on slot `slot`: their slots, offsets (k, 3) and twist heights (k,); the
-    center of gravity as every segment's centroid (the whole tree is walked for it)."""
-    b, lay = problem.body, problem.layout
-    n_j, n_f = b.n_joints, len(b.feature_names)
-    if index == n_j + n_f:
-        slots = [lay.chain.position(s) for s in range(b.n_segments)]
-        return slots, b.centroids, b.centroids[:, 2]
-    if index == 0:
-        return [slot], jnp.zeros((1, 3)), jnp.zeros(1)
-    if index < n_j:
-        L = b.lengths[index - 1]
-        return [slot], jnp.stack([0.0 * L, 0.0 * L, L])[None], L[None]
-    sph = b.feature_sphere[index - n_j]
-    origin = b.sphere_origins[sph]
-    offset = origin + b.sphere_radii[sph] * b.feature_directions[index - n_j]
-    return [slot], offset[None], origin[2:3]
-
-
-def _mass_mean(body: Body, centroids: Array) -> Array:
-    """The center of gravity of the segments' world centroids (n_seg, 3)."""
-    total = jnp.sum(body.masses)
-    return (body.masses / jnp.where(total > 0, total, 1.0)) @ centroids
-
-
-def _whole_tree_slots(problem: Problem) -> list[int]:
-    """Every segment's slot: in the chain (the full tree), or read by the constraints."""
-    lay = problem.layout
-    if lay.full:
-        return [lay.chain.position(s) for s in range(problem.body.n_segments)]
-    return list(lay.read_slot)
 
 
 def scaled_distance(a: Array, b: Array) -> Array:

@@ -6,15 +6,18 @@ functions built on it; and the effectors it places against `forward`."""
 
 import functools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import diffbody as db
+from diffbody.problem._constraints import resolve_constraints
 from diffbody.problem._points import tree_points, walk_points
 from diffbody.problem._problem import make_problem
 from diffbody.problem._targets import resolve_targets
+from diffbody.problem._terms import cog_term, place, sphere_term, target_terms
 from diffbody.problem._unknowns import make_layout, whole_tree_layout
 
 
@@ -150,3 +153,44 @@ def test_effectors_are_where_forward_puts_them(male50):
     np.testing.assert_allclose(p[1], kin.center_of_gravity, atol=1e-12)
     head = body.segment_index("head")
     np.testing.assert_allclose(axes[0], kin.R_world_twisted[head] @ ts.axis_local[0], atol=1e-12)
+
+
+def test_terms_placed_together_are_each_alone_and_where_forward_puts_them(male50):
+    """`_terms.place`: the terms of a standing problem (effectors, an axis, the spheres the
+    constraints read, the center of gravity) placed in one call of the kernel equal each
+    term placed alone, and `forward` of the problem's pose (sphere centres, center of
+    gravity); the problem's rows are its residuals, by term."""
+    body = male50
+    targets = [
+        db.Target.position("left_hand.palm", [0.5, 0.3, 1.0]),
+        db.Target.axis_direction("head", [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]),
+        db.Target.no_contact(["left_hand"], margin=0.01),
+        db.Target.on_floor(),
+        db.Target.balance(),
+    ]
+    goals, constraints = targets[:2], targets[2:]
+    ts, _ = resolve_targets(body, goals)
+    init = body.rest_pose()
+    c = resolve_constraints(body, constraints, init)
+    ts = eqx.tree_at(lambda t: t.constraints, ts, c, is_leaf=lambda x: x is None)
+    segments = range(body.n_segments)
+    read = tuple(c.segments)
+    lay = make_layout(body, ts.point_index, ts.axis_segment, segments, True, True, read, c.feet)
+    problem = make_problem(body, lay, init)
+    x = problem.x0 + 0.1 * jnp.asarray(np.random.default_rng(2).standard_normal(problem.x0.shape))
+    points, axes = target_terms(problem, ts)
+    terms = {"palm": points[0], "axes": axes, "spheres": sphere_term(problem, c.spheres)}
+    terms["cog"] = cog_term(problem)
+    together = place(problem, x, terms)
+    for name, term in terms.items():
+        np.testing.assert_allclose(
+            together[name], place(problem, x, {name: term})[name], atol=1e-14
+        )
+    kin = db.forward(body, problem.pose(x, init))
+    np.testing.assert_allclose(
+        together["spheres"], kin.sphere_centers[np.asarray(c.spheres)], atol=1e-12
+    )
+    np.testing.assert_allclose(together["cog"], kin.center_of_gravity, atol=1e-12)
+    rows = problem.rows(x, ts)
+    assert [r.shape[0] for r in rows] == [3, 3, rows.constraints.shape[0], lay.n_free]
+    np.testing.assert_array_equal(jnp.concatenate(rows), problem.residuals(x, ts))
