@@ -77,20 +77,21 @@ def batch_solve(body, layout, ts, solver, max_steps: int):
     closed-form limb start (the standard position elsewhere)."""
     import equinox as eqx
 
-    from diffbody.ik._attempt import assess, solve_free
+    from diffbody.ik._attempt import Settings, assess, solve_free
+    from diffbody.problem._problem import make_problem
 
     dtype = body.lengths.dtype
     init = body.rest_pose()
-    tols = (jnp.asarray(1e-3, dtype), jnp.asarray(np.deg2rad(1.0), dtype))
+    settings = Settings(jnp.asarray(1e-3, dtype), jnp.asarray(np.deg2rad(1.0), dtype), True)
     start, fresh = jnp.asarray(0), jnp.asarray(True)
     x0 = jnp.zeros(layout.n_free, dtype)
 
     def one(xyz):
+        problem = make_problem(body, layout, init)
         targets = eqx.tree_at(lambda t: t.point_xyz, ts, xyz[None].astype(dtype))
-        x, steps, _ = solve_free(
-            body, layout, init, targets, x0, start, fresh, max_steps, *tols, True, solver
-        )
-        return assess(body, layout, init, targets, x, steps, *tols).pose, steps
+        args = (problem, targets, x0, start, fresh, max_steps, settings)
+        x, steps, _ = solve_free(*args, solver=solver)
+        return assess(problem, init, targets, x, steps, settings).pose, steps
 
     return jax.vmap(one)
 

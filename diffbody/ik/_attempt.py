@@ -47,6 +47,17 @@ class Attempt(eqx.Module):
     steps: Array
 
 
+class Settings(eqx.Module):
+    """What a reach's rounds are asked beside their problem, targets and start: what counts
+    as reached (m, rad; data, so that every tolerance shares a program), and whether the
+    first start is the closed-form limb start (static; on a plan the plan says,
+    `Plan.closed`)."""
+
+    tol_position: Float[Array, ""]
+    tol_angle: Float[Array, ""]
+    closed_form: bool = eqx.field(static=True, default=False)
+
+
 def reach_solver(dtype) -> optx.AbstractLeastSquaresSolver:
     """The solver of a reach round in `dtype`: `least_squares_solver` with the early stop,
     rtol = atol = 1e-6 in float32 (which cannot resolve relative changes of 1e-8), 1e-8 in
@@ -63,14 +74,12 @@ def _residuals(x: Array, args: tuple[Problem, TargetSet, StopAt]) -> Array:
     return problem.residuals(x, targets)
 
 
-def _close_enough(
-    targets: TargetSet, tol_position: Array, tol_angle: Array, n_constraint_rows: int
-) -> Array:
+def _close_enough(targets: TargetSet, settings: Settings, n_constraint_rows: int) -> Array:
     """Per target and constraint row (the first rows of `Problem.rows`), the weighted
     residual below which the solve may stop early."""
-    p = jnp.repeat(targets.point_weight * tol_position, 3)
-    a = jnp.repeat(targets.axis_weight * tol_angle, 3)
-    c = jnp.full(n_constraint_rows, WEIGHT * tol_position)
+    p = jnp.repeat(targets.point_weight * settings.tol_position, 3)
+    a = jnp.repeat(targets.axis_weight * settings.tol_angle, 3)
+    c = jnp.full(n_constraint_rows, WEIGHT * settings.tol_position)
     return 0.01 * jnp.concatenate([p, a, c])
 
 
@@ -100,17 +109,13 @@ def implicit(problem: Problem, targets: TargetSet, x: Array) -> Array:
 
 
 def start_vector(
-    body: Body,
-    layout: Layout,
-    targets: TargetSet,
-    problem: Problem,
-    start: Int[Array, ""],
-    closed_form: bool,
+    problem: Problem, targets: TargetSet, start: Int[Array, ""], closed_form: bool
 ) -> Float[Array, " n_free"]:
     """The free vector of start `start` (traced): 0 is the closed-form limb start when
     `closed_form` (the first phase), else the problem's start; then the Halton points of
     `_starts`."""
-    first = limb_start(body, layout, targets, problem) if closed_form else problem.x0
+    layout = problem.layout
+    first = limb_start(problem.body, layout, targets, problem) if closed_form else problem.x0
     n_trunk = (3 if layout.spine else 0) + (6 if layout.root else 0)
     plan = problem.plan
     if plan is None:
@@ -120,41 +125,33 @@ def start_vector(
 
 
 def solve_free(
-    body: Body,
-    layout: Layout,
-    init: Pose,
+    problem: Problem,
     targets: TargetSet,
     x: Float[Array, " n_free"],
     start: Int[Array, ""],
     fresh: Bool[Array, ""],
     max_steps: int,
-    tol_position: Float[Array, ""],
-    tol_angle: Float[Array, ""],
-    closed_form: bool = False,
-    solver: optx.AbstractLeastSquaresSolver | None = None,
+    settings: Settings,
     cap: Int[Array, ""] | None = None,
-    problem: Problem | None = None,
+    solver: optx.AbstractLeastSquaresSolver | None = None,
 ) -> tuple[Float[Array, " n_free"], Int[Array, ""], Bool[Array, ""]]:
-    """One round of one phase's solve: from start `start` when `fresh`, else from x (the
-    last round's answer), at most `max_steps` steps (static: the compiled loop's bound), or
-    `cap` steps (data, <= max_steps: every cap shares one program). Returns the free
-    vector, the steps and whether the solve has ended (stopped early, converged, or left
-    the finite numbers: then it falls back to where the round began). Non-finite targets
-    take no part. Never differentiated (see `assess`). `solver`: by default `reach_solver`
-    (any optimistix least-squares solver runs on the same problem; only `EarlyStop` reads
-    the last element of the args, `StopAt`). `problem`: `make_problem`'s, when already
-    built (its derivatives are stopped here)."""
-    body, init, targets, x, tol_position, tol_angle, problem = no_gradient(
-        (body, init, targets, x, tol_position, tol_angle, problem)
-    )
+    """One round of one phase's solve of `problem` (`make_problem`'s; its derivatives are
+    stopped here): from start `start` when `fresh`, else from x (the last round's answer),
+    at most `max_steps` steps (static: the compiled loop's bound), or `cap` steps (data,
+    <= max_steps: every cap shares one program). Returns the free vector, the steps and
+    whether the solve has ended (stopped early, converged, or left the finite numbers: then
+    it falls back to where the round began). Non-finite targets take no part. Never
+    differentiated (see `assess`). `solver`: by default `reach_solver` (any optimistix
+    least-squares solver runs on the same problem; only `EarlyStop` reads the last element
+    of the args, `StopAt`)."""
+    problem, targets, x, settings = no_gradient((problem, targets, x, settings))
     safe, _, _ = mask_invalid(targets)
-    problem = make_problem(body, layout, init) if problem is None else problem
-    x0 = start_vector(body, layout, safe, problem, start, closed_form)
+    x0 = start_vector(problem, safe, start, settings.closed_form)
     x0 = jnp.where(fresh, x0, x)
-    if not layout.n_free:
+    if not problem.layout.n_free:
         return x0, jnp.asarray(0), jnp.asarray(True)
     n_constraint_rows = jax.eval_shape(problem.rows, x0, safe).constraints.shape[0]
-    bounds = _close_enough(safe, tol_position, tol_angle, n_constraint_rows)
+    bounds = _close_enough(safe, settings, n_constraint_rows)
     cap = jnp.asarray(max_steps if cap is None else cap)
     args = (problem, safe, StopAt(bounds, cap))
     solver = reach_solver(x0.dtype) if solver is None else solver
@@ -163,23 +160,20 @@ def solve_free(
 
 
 def assess(
-    body: Body,
-    layout: Layout,
+    problem: Problem,
     init: Pose,
     targets: TargetSet,
     x: Float[Array, " n_free"],
     steps: Int[Array, ""],
-    tol_position: Float[Array, ""],
-    tol_angle: Float[Array, ""],
+    settings: Settings,
     differentiable: bool = False,
-    problem: Problem | None = None,
 ) -> Attempt:
-    """The pose, errors and verdict of a solved free vector; with `differentiable`, the
-    answer carries the implicit function theorem's derivatives (`implicit`). `problem`:
-    `make_problem`'s, when already built."""
+    """The pose (from `init`), errors and verdict of a solved free vector of `problem`;
+    with `differentiable`, the answer carries the implicit function theorem's derivatives
+    (`implicit`)."""
     safe, ok_p, ok_a = mask_invalid(targets)
-    problem = make_problem(body, layout, init) if problem is None else problem
-    if differentiable and layout.n_free:
+    tol_position, tol_angle = settings.tol_position, settings.tol_angle
+    if differentiable and problem.layout.n_free:
         x = implicit(problem, safe, x)
     err_p, err_a, violation = problem.errors(x, safe)
     ok = jnp.all(jnp.where(ok_p, err_p <= tol_position, True))
@@ -200,33 +194,17 @@ def attempt_round(
     start: Int[Array, ""],
     fresh: Bool[Array, ""],
     cap: Int[Array, ""],
-    tol_position: Float[Array, ""],
-    tol_angle: Float[Array, ""],
-    closed_form: bool,
+    settings: Settings,
     plan: Plan | None = None,
 ) -> tuple[Float[Array, " n_free"], Bool[Array, ""], Attempt]:
     """One round (`solve_free`) of at most `cap` <= `ROUND_STEPS` steps (data), assessed
     (no derivatives): the free vector to go on from, whether the solve has ended, and the
     attempt (its steps: this round's). The problem is built once and shared. `plan`: the
-    whole tree's (`_tree`, with `tree_layout`): then the plan says whether the first start
-    is the limb start (`closed_form` True)."""
-    tols = (tol_position, tol_angle)
+    whole tree's or a limb chain's (`_tree`): then the plan says whether the first start
+    is the limb start (`settings.closed_form` True)."""
     problem = make_problem(no_gradient(body), layout, no_gradient(init), no_gradient(plan))
-    x, steps, done = solve_free(
-        body,
-        layout,
-        init,
-        targets,
-        x,
-        start,
-        fresh,
-        ROUND_STEPS,
-        *tols,
-        closed_form,
-        cap=cap,
-        problem=problem,
-    )
-    return x, done, assess(body, layout, init, targets, x, steps, *tols, problem=problem)
+    x, steps, done = solve_free(problem, targets, x, start, fresh, ROUND_STEPS, settings, cap)
+    return x, done, assess(problem, init, targets, x, steps, settings)
 
 
 # Standing, a phase may take this many times `max_steps`: the planted feet close a loop

@@ -28,12 +28,13 @@ from .._body_cache import RANGES, BodyCache
 from .._kinematics import Links, forward
 from .._programs import compiled, is_traced
 from .._spine import spine_angles
-from ..problem._problem import stiffness_of
+from ..problem._problem import make_problem, stiffness_of
 from ..problem._targets import TargetSet
 from ..problem._tree import padded_targets, targets_rows, tree_layout
 from ..problem._unknowns import Layout, make_layout, point_segment
 from ._attempt import (
     Attempt,
+    Settings,
     assess,
     attempt_round,
     better,
@@ -256,19 +257,16 @@ def phase_plan(
 
 
 # --- the drivers ------------------------------------------------------------------------
-def _all_starts(
-    body, layout, init, targets, starts: int, max_steps: int, tol_p, tol_a, closed_form: bool
-):
+def _all_starts(body, layout, init, targets, starts: int, max_steps: int, settings: Settings):
     """Every start side by side, each one uninterrupted solve: the free vector of the first
     that reaches (else of the closest) and the steps of all."""
+    problem = make_problem(body, layout, init)
 
     def one(k):
-        x0 = jnp.zeros(layout.n_free, tol_p.dtype)
-        tols = (tol_p, tol_a)
-        x, steps, _ = solve_free(
-            body, layout, init, targets, x0, k, jnp.asarray(True), max_steps, *tols, closed_form
-        )
-        return x, assess(body, layout, init, targets, x, steps, *tols)
+        x0 = jnp.zeros(layout.n_free, settings.tol_position.dtype)
+        fresh = jnp.asarray(True)
+        x, steps, _ = solve_free(problem, targets, x0, k, fresh, max_steps, settings)
+        return x, assess(problem, init, targets, x, steps, settings)
 
     xs, tries = jax.vmap(one)(jnp.arange(starts))
     k = jnp.where(jnp.any(tries.ok), jnp.argmax(tries.ok), jnp.argmin(tries.cost))
@@ -278,7 +276,15 @@ def _all_starts(
 # Compiled once per problem shape and reused by every later call (under jax.grad too: their
 # inputs carry no derivatives, so the compiled solve is the same).
 _all_starts_jit = compiled(_all_starts)
-_assess_jit = compiled(assess)
+
+
+def _answer(body, layout, init, targets, x, steps, settings: Settings) -> Attempt:
+    """The attempt of a solved free vector, differentiable in everything the problem and
+    the targets depend on (`assess`)."""
+    return assess(make_problem(body, layout, init), init, targets, x, steps, settings, True)
+
+
+_answer_jit = compiled(_answer)
 _round_jit = compiled(attempt_round)
 
 
@@ -293,12 +299,12 @@ def run_start(body, layout, init, ts, k: int, caps: list[int], tols, closed_form
     rounds run on their program, a limb chain's or the whole tree's (`ts` then padded,
     `padded_targets`)."""
     lay, plan = (layout, None) if planned is None else planned
-    closed = closed_form if plan is None else True  # the plan says (data)
+    settings = Settings(*tols, closed_form if plan is None else True)  # a plan says (data)
     x = np.zeros(lay.n_free, tols[0].dtype)
     spent, fresh = 0, True
     for cap in caps:
         k_, fresh_, cap_ = np.int32(k), np.asarray(fresh), np.asarray(cap, np.int32)
-        x, done, a = _round_jit(body, lay, init, ts, x, k_, fresh_, cap_, *tols, closed, plan)
+        x, done, a = _round_jit(body, lay, init, ts, x, k_, fresh_, cap_, settings, plan)
         # Back on the host, as the first round's: a device array (committed to its device)
         # would compile the same round again.
         x = np.asarray(x)
@@ -408,11 +414,11 @@ def solve_traced(body, layouts, init, phase_targets, starts, max_steps, tols):
     best, steps = None, jnp.asarray(0)
     start_pose = init
     for phase, (layout, ts) in enumerate(zip(layouts, phase_targets_of(layouts, phase_targets))):
-        b0, p0, t0, tp0, ta0 = no_gradient((body, start_pose, ts, *tols))
+        settings = Settings(*tols, uses_limb_start(phase, ts))
+        b0, p0, t0, s0 = no_gradient((body, start_pose, ts, settings))
         steps_k = phase_steps(layout, max_steps)
-        closed = uses_limb_start(phase, ts)
-        x, s = _all_starts_jit(b0, layout, p0, t0, starts, steps_k, tp0, ta0, closed)
-        a = _assess_jit(body, layout, start_pose, ts, x, s, *tols, True)
+        x, s = _all_starts_jit(b0, layout, p0, t0, starts, steps_k, s0)
+        a = _answer_jit(body, layout, start_pose, ts, x, s, settings)
         steps = steps + s
         if best is not None and (a.pose.spine_target is None) != (best.pose.spine_target is None):
             # The limbs' phase leaves the spine as in init: name it as a target, so that

@@ -23,23 +23,23 @@ from ..problem._constraints import is_constraint, pose_violations
 from ..problem._targets import Target, TargetSet, resolve_targets
 from ..problem._unknowns import Layout
 from ..runs._batches import bucket, chunk_rows, map_chunks, put_rows, row_sharding, take_rows
-from ._attempt import Attempt, attempt_round, better, phase_steps, round_caps
+from ._attempt import Attempt, Settings, attempt_round, better, phase_steps, round_caps
 from ._phases import is_none, phase_layouts, phase_plan, phase_targets_of, uses_limb_start
 from ._plans import limb_plans
 from ._post_projection import finish, keep_mask, needs_projection
 from ._reach import ReachResult, check_settings, constrained_targets, reach_status
 
 
-def _round_rows(body, layout, inits, template, xyz, x, ks, fresh, cap, tols, closed, plan=None):
+def _round_rows(body, layout, inits, template, xyz, x, ks, fresh, cap, settings, plan=None):
     """`attempt_round` vmapped over rows: their start poses (or one `Pose` shared by every
     row: then what depends on it alone, the start's walk and problem, is computed once per
     chunk, not per row), target positions (batch, k, 3), free vectors to go on from, start
-    indices and whether each begins its start; `tols`: (m, rad). `plan`: a limb chain's
-    (`_tree`), shared by every row."""
+    indices and whether each begins its start. `plan`: a limb chain's (`_tree`), shared by
+    every row."""
 
     def one(init, p, x, k, f):
         targets = eqx.tree_at(lambda t: t.point_xyz, template, p)
-        return attempt_round(body, layout, init, targets, x, k, f, cap, *tols, closed, plan)
+        return attempt_round(body, layout, init, targets, x, k, f, cap, settings, plan)
 
     shared = jnp.ndim(inits.position) == 1
     return jax.vmap(one, in_axes=(None if shared else 0, 0, 0, 0, 0))(inits, xyz, x, ks, fresh)
@@ -244,7 +244,7 @@ def _round(s: _Setup, phase: int, rows, poses: Pose | None, x, ks, fresh, cap, l
     cap = np.asarray(cap, np.int32)  # data: every round cap shares one program
 
     def fn(p, xyz, x, k, f):
-        args = (s.body, layout, p, template, xyz, x, k, f, cap, s.tols, closed, plan)
+        args = (s.body, layout, p, template, xyz, x, k, f, cap, Settings(*s.tols, closed), plan)
         return _round_rows_jit(*args)
 
     chunk = s.chunk if 2 * len(rows) > s.chunk else s.retry_chunk
@@ -276,8 +276,7 @@ def _empty_result(s: _Setup) -> ReachResult:
         jnp.zeros(1, int),
         jnp.ones(1, bool),
         s.max_steps,
-        s.tols,
-        False,
+        Settings(*s.tols),
     )
     empty = jax.tree.map(lambda a: np.zeros((0,) + a.shape[1:], a.dtype), shapes)
     return _batch_result(s, empty, np.zeros(0, int), np.zeros((0, k), bool))

@@ -10,9 +10,10 @@ from compiles import compiled_names, counted_compiles
 
 import diffbody as db
 from diffbody import _programs
-from diffbody.ik._attempt import ROUND_STEPS, solve_free
+from diffbody.ik._attempt import ROUND_STEPS, Settings, solve_free
 from diffbody.ik._phases import phase_layouts
 from diffbody.ik._reach import constrained_targets
+from diffbody.problem._problem import make_problem
 from diffbody.problem._targets import Target, resolve_targets
 
 
@@ -41,15 +42,17 @@ def test_a_step_cap_given_as_data_stops_where_a_static_one_does(male50, cap):
     layout = phase_layouts(
         male50, phase_targets, spine=True, free_root=False, segments=None, stand=False
     )[0]
-    tols = (jnp.asarray(1e-3), jnp.asarray(np.deg2rad(1.0)))
-    common = (male50, layout, rest, phase_targets[0], jnp.zeros(layout.n_free))
-    start = (jnp.asarray(0), jnp.asarray(True))
+    settings = Settings(jnp.asarray(1e-3), jnp.asarray(np.deg2rad(1.0)), True)
+    start = (jnp.zeros(layout.n_free), jnp.asarray(0), jnp.asarray(True))
+
     # Compiled (op by op, each of its hundreds of operations is a program of its own).
-    solve = eqx.filter_jit(solve_free)
-    x_static, steps_static, done_static = solve(*common, *start, cap, *tols, True)
-    x_data, steps_data, done_data = solve(
-        *common, *start, ROUND_STEPS, *tols, True, cap=jnp.asarray(cap)
-    )
+    @eqx.filter_jit
+    def solve(max_steps, cap=None):
+        problem = make_problem(male50, layout, rest)
+        return solve_free(problem, phase_targets[0], *start, max_steps, settings, cap)
+
+    x_static, steps_static, done_static = solve(cap)
+    x_data, steps_data, done_data = solve(ROUND_STEPS, jnp.asarray(cap))
     assert int(steps_static) == cap and not bool(done_static)
     assert int(steps_data) == cap and not bool(done_data)
     np.testing.assert_allclose(x_data, x_static, rtol=0, atol=1e-6)

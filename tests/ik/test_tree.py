@@ -39,7 +39,7 @@ def _evaluate(body, layout, init, plan, x, targets):
 @eqx.filter_jit
 def _starts(body, layout, init, plan, targets, k):
     problem = make_problem(body, layout, init, plan)
-    return problem.x0, start_vector(body, layout, targets, problem, k, True)
+    return problem.x0, start_vector(problem, targets, k, True)
 
 
 def _phases_of(body, targets, stand=True):
