@@ -10,7 +10,7 @@ from compiles import counted_compiles
 
 import diffbody as db
 from diffbody import _programs
-from diffbody.ik._attempt import attempt_round
+from diffbody.ik._attempt import Settings, attempt_round
 from diffbody.ik._phases import phase_layouts
 from diffbody.ik._reach import constrained_targets
 from diffbody.problem._targets import Target, resolve_targets
@@ -26,10 +26,10 @@ def _standing_round(body):
         body, phase_targets, spine=True, free_root=False, segments=None, stand=True
     )
     assert layouts[-1].standing
-    tols = (jnp.asarray(1e-3), jnp.asarray(np.deg2rad(1.0)))
+    settings = Settings(jnp.asarray(1e-3), jnp.asarray(np.deg2rad(1.0)))
     x = jnp.zeros(layouts[-1].n_free)
     start = (np.asarray(0), np.asarray(True), np.asarray(10, np.int32))
-    return (body, layouts[-1], rest, phase_targets[-1], x, *start, *tols, False)
+    return (body, layouts[-1], rest, phase_targets[-1], x, *start, settings)
 
 
 def test_the_compile_options_give_xla_defaults_answers(male50):
