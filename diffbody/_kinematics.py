@@ -67,23 +67,19 @@ def socket_frames(
     code = table_codes(body, idx)
     theta, phi = angles[:, THETA], angles[:, PHI]
 
-    def swing(k: np.ndarray) -> Array:
-        R_rest = body.R_socket_rest[idx[k]]
-        d = azimuth_polar_to_vector(theta[k], phi[k])
+    def swing():
+        R_rest = body.R_socket_rest[idx]
+        d = azimuth_polar_to_vector(theta, phi)
         return matmul3(swing_rotation(R_rest[:, :, 2], d), R_rest)
 
-    def table(k: np.ndarray) -> Array:
-        t, p = theta[k], phi[k]
-        return orientation_matrix(t, p, standard_twist_coded(t, p, code[k]))
+    def table():  # every segment's, one evaluation: the swing default's are dropped
+        return orientation_matrix(theta, phi, standard_twist_coded(theta, phi, code % len(LIMBS)))
 
-    # Each kind on its own segments (the tables are 4 of the body's 37), put back in order.
-    tab, default = np.flatnonzero(code >= 0), np.flatnonzero(code < 0)
-    if not len(tab):
-        return swing(default)
-    if not len(default):
-        return table(tab)
-    R = jnp.concatenate([table(tab), swing(default)])
-    return R[np.argsort(np.concatenate([tab, default]))]
+    if np.all(code < 0):
+        return swing()
+    if np.all(code >= 0):
+        return table()
+    return jnp.where((code >= 0)[:, None, None], table(), swing())
 
 
 KINDS: tuple[str, ...] = ("swing",) + LIMBS  # socket-frame kinds, coded by position
