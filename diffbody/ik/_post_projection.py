@@ -11,6 +11,7 @@ from .._body import Body, Pose
 from .._kinematics import forward
 from .._limits import within_limits
 from .._posture import pose_from_joints
+from .._spine import bend_from_rest, with_spine_angles
 from ..problem._unknowns import Layout, point_segment
 
 # A reset that breaks a limit by more than this (rad) is refused: the posture from joints
@@ -60,7 +61,14 @@ def keep_mask(body: Body, layout: Layout) -> np.ndarray:
 def project_to_standard(body: Body, pose: Pose, keep: np.ndarray | Array) -> Pose:
     """The pose with every twist outside `keep` (a mask over the segments, `keep_mask`)
     reset to the standard orientation, joint positions unchanged (the posture from
-    joints); if the reset would break a limit, the pose is returned as it is."""
+    joints); if a reset would break a limit, the pose is returned as it is. A pose with a
+    spine target keeps it: its vertebrae are where the target bends them (`spine_as_angles`)
+    and keep their twists, so that the segments hanging from them are projected from the
+    frames `forward` gives them."""
+    given, target = pose, pose.spine_target
+    if target is not None:
+        pose = spine_as_angles(body, pose, True)
+        keep = keep | vertebrae_mask(body)
     fk = forward(body, pose)
     deviation = jnp.where(keep, pose.angles[:, 2], 0.0)
     W = fk.R_world_twisted[0]  # the whole body's frame is never projected
@@ -68,10 +76,19 @@ def project_to_standard(body: Body, pose: Pose, keep: np.ndarray | Array) -> Pos
     projected = Pose(
         position=pose.position,
         angles=jnp.where(keep[:, None], pose.angles, standard),
-        spine_target=pose.spine_target,
+        spine_target=target,
     )
-    ok = jnp.all(within_limits(body, projected, tol=PROJECTION_TOL))
-    return jax.tree.map(lambda a, c: jnp.where(ok, a, c), projected, pose)
+    # The kept rows are the pose's own: only the reset ones are the projection's to check.
+    ok = jnp.all(within_limits(body, projected, tol=PROJECTION_TOL) | keep)
+    return jax.tree.map(lambda a, c: jnp.where(ok, a, c), projected, given)
+
+
+def vertebrae_mask(body: Body) -> np.ndarray:
+    """(n_seg,) the segments a spine target moves (none without a spine database)."""
+    mask = np.zeros(body.n_segments, bool)
+    if body.spine is not None:
+        mask[[body.segment_index(s) for s in body.spine.segment_names]] = True
+    return mask
 
 
 def finish(body: Body, pose: Pose, keep: np.ndarray | Array | None, project=True) -> Pose:
@@ -84,3 +101,14 @@ def finish(body: Body, pose: Pose, keep: np.ndarray | Array | None, project=True
     if project is True:
         return projected
     return jax.tree.map(lambda a, c: jnp.where(project, a, c), projected, pose)
+
+
+def spine_as_angles(body: Body, pose: Pose, bent: bool | Array | np.ndarray) -> Pose:
+    """The pose without a spine target: where `bent` (data), its vertebrae set to the
+    angles its target gives (Bendspine from rest, as `forward` bends them); else the pose's
+    own angles. One structure for answers with and without a spine target, so that one
+    compiled conclusion serves both (`_reach.solve_reach`)."""
+    shaped = with_spine_angles(
+        body, body.spine, pose, bend_from_rest(body.spine, pose.spine_target).angles
+    )
+    return Pose(position=pose.position, angles=jnp.where(bent, shaped.angles, pose.angles))

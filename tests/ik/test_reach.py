@@ -7,6 +7,7 @@ import pytest
 from limb_poses import random_limb_angles
 
 import diffbody as db
+from diffbody.ik._post_projection import project_to_standard
 
 
 @pytest.fixture(scope="module")
@@ -38,6 +39,32 @@ def test_a_low_reach_bends_the_spine(male50, palm0):
     _check_limits(male50, out.pose)
     rest_flexion = float(male50.spine.rest.sum(0)[0])
     assert float(out.pose.spine_target[0]) > rest_flexion + 0.2  # the trunk bends forward
+    # The post-projection keeps every joint, the other arm's too (regression: it moved the
+    # right fingertip by 72 mm, the vertebrae's twists reset under the spine target's).
+    raw = db.solve_reach(
+        male50, [db.Target.position("left_hand.palm", target)], standard_orientation=False
+    )
+    np.testing.assert_allclose(out.pose.spine_target, raw.pose.spine_target, atol=1e-12)
+    j_raw = db.forward(male50, raw.pose).joint_positions
+    np.testing.assert_allclose(db.forward(male50, out.pose).joint_positions, j_raw, atol=1e-8)
+
+
+def test_the_post_projection_of_a_bent_spine_keeps_every_joint(male50):
+    """`project_to_standard` of a pose with a spine target and a twisted right forearm (not
+    kept): the twist goes back to the standard orientation, the spine target stays, and no
+    joint moves (the segments hanging from the vertebrae projected from the frames the
+    target gives them)."""
+    rest = male50.rest_pose()
+    forearm = male50.segment_index("right_forearm")
+    target = male50.spine.rest.sum(0) + jnp.asarray([0.4, 0.25, -0.2])
+    pose = db.Pose(rest.position, rest.angles.at[forearm, 2].set(0.6), spine_target=target)
+    keep = np.zeros(male50.n_segments, bool)
+    keep[[male50.segment_index(s) for s in ARM]] = True
+    out = project_to_standard(male50, pose, keep)
+    assert abs(float(out.angles[forearm, 2])) < 1e-9
+    np.testing.assert_array_equal(out.spine_target, target)
+    before, after = db.forward(male50, pose), db.forward(male50, out)
+    np.testing.assert_allclose(after.joint_positions, before.joint_positions, atol=1e-9)
 
 
 def test_unreachable_target_gives_the_closest_reach(male50, palm0):
