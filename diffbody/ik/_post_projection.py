@@ -19,11 +19,12 @@ from ..problem._unknowns import Layout, point_segment
 PROJECTION_TOL = 1e-6
 
 
-def twists_to_keep(body: Body, layout: Layout) -> tuple[int, ...]:
+def twists_to_keep(body: Body, layout: Layout, constraints=None) -> tuple[int, ...]:
     """Segments whose twist the projection keeps (static): the whole body, the vertebrae
     the spine moves, every segment at or above an off-axis effector (a feature or an axis
-    target turns with the twists above it; joint positions never do), and the parent of
-    every hinge (resetting it would turn the hinge plane away from a bent joint)."""
+    target turns with the twists above it; joint positions never do), the parent of every
+    hinge (resetting it would turn the hinge plane away from a bent joint), and the feet
+    the `constraints` plant (their soles turn with their twists: a reset would lift them)."""
     names = body.segment_names
     spine = set(body.spine.segment_names) if body.spine is not None else set()
     keep = {0} | {i for i in layout.chain.segments if names[i] in spine}
@@ -41,20 +42,22 @@ def twists_to_keep(body: Body, layout: Layout) -> tuple[int, ...]:
     for seg in off_axis:
         keep |= set(body.path_to_top(seg))
     keep |= {int(body.parent[i]) for i in range(body.n_segments) if body.limit_kind[i] == "hinge"}
+    if constraints is not None:
+        keep |= set(constraints.feet)
     return tuple(sorted(keep))
 
 
-def needs_projection(body: Body, layout: Layout) -> bool:
+def needs_projection(body: Body, layout: Layout, constraints=None) -> bool:
     """Whether the solver moves a twist that the projection would reset."""
     seg = layout.chain.segments
     moved = {seg[k] for k in layout.twist}
-    return bool(moved - set(twists_to_keep(body, layout)))
+    return bool(moved - set(twists_to_keep(body, layout, constraints)))
 
 
-def keep_mask(body: Body, layout: Layout) -> np.ndarray:
+def keep_mask(body: Body, layout: Layout, constraints=None) -> np.ndarray:
     """(n_seg,) `twists_to_keep` as a mask."""
     mask = np.zeros(body.n_segments, bool)
-    mask[list(twists_to_keep(body, layout))] = True
+    mask[list(twists_to_keep(body, layout, constraints))] = True
     return mask
 
 

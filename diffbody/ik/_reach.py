@@ -146,7 +146,7 @@ def solve_reach(
     dtype = jnp.result_type(float)
     tols = (_scalar(tol_position, dtype), _scalar(tol_angle, dtype))
     final, ts = layouts[-1], phase_targets[-1]
-    project = bool(standard_orientation and needs_projection(body, final))
+    project = bool(standard_orientation and needs_projection(body, final, ts.constraints))
     settings = (int(starts), int(max_steps), tols)
     traced = is_traced(body, init, phase_targets)
     plans = None if traced else phase_plans(body, layouts, phase_targets)
@@ -161,7 +161,7 @@ def solve_reach(
         # would be a static argument (a program per step count).
         best, steps = jax.device_get(best), np.asarray(steps, np.int32)
     if plans is None:
-        keep = keep_mask(body, final) if project else None
+        keep = keep_mask(body, final, ts.constraints) if project else None
         return _conclude_jit(body, keep, True, best, ts, back, beyond, steps, tols, False)
     # The whole tree's conclusion: one program for every effector set of a bucket (the
     # projection's twists and the targets' order as data), cut to the targets on the host.
@@ -170,7 +170,7 @@ def solve_reach(
     back = np.where(back < n_p, back, back - n_p + P)
     back = np.concatenate([back, np.setdiff1d(np.arange(P + A), back)])
     beyond = np.concatenate([beyond, np.zeros(P - n_p, bool)])
-    keep, flag = keep_mask(body, final), device_array(project, bool)
+    keep, flag = keep_mask(body, final, ts.constraints), device_array(project, bool)
     target, bent = best.pose.spine_target, None
     if body.spine is not None:
         # A spine target always, `bent` saying whether it is the answer's (data): answers

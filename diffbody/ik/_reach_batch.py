@@ -383,7 +383,8 @@ def _with_spine_target(s: _Setup, best: Attempt) -> Attempt:
 def _project(s: _Setup, best: Attempt) -> Attempt:
     """The rows' poses after the post-projection, when the final phase needs one."""
     final = s.layouts[-1]
-    keep = keep_mask(s.body, final) if needs_projection(s.body, final) else None
+    c = s.templates[-1].constraints
+    keep = keep_mask(s.body, final, c) if needs_projection(s.body, final, c) else None
     if keep is None:
         return best
     poses = _over_poses(s, lambda p: _finish_rows_jit(s.body, p, keep), best.pose, "project")

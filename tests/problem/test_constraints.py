@@ -74,9 +74,18 @@ def test_a_reach_that_cannot_be_balanced_is_constrained_not_a_fall(male50, shoul
 
 # Explicit examples, not hypothesis: each standing solve costs seconds even compiled. Corners
 # of the region in front of, beside and below the shoulder (d 0.75-1.4 m forward, y -0.3-0.3
-# m, z -0.6-0.1 m): a reached one, one beyond the balance (CONSTRAINED), the right hand's.
+# m, z -0.6-0.1 m): a reached one, those beyond the balance (CONSTRAINED; two of them lifted a
+# foot by 1.9 mm or left the balance by 2.7 mm when the post-projection reset the feet's
+# twists, turning their soles: a regression), the right hand's.
 @pytest.mark.parametrize(
-    "d, y, z, arm", [(0.75, -0.3, -0.6, 0), (1.4, 0.3, -0.6, 0), (1.1, 0.3, -0.6, 1)]
+    "d, y, z, arm",
+    [
+        (0.75, -0.3, -0.6, 0),
+        (1.4, 0.3, -0.6, 0),
+        (1.4, 0.3, 0.1, 0),
+        (1.4, -0.3, -0.6, 0),
+        (1.1, 0.3, -0.6, 1),
+    ],
 )
 def test_every_standing_answer_keeps_its_feet_and_its_balance(male50, shoulder, d, y, z, arm):
     """Targets in front, to the side and low, for either hand: whatever the status, the
@@ -88,21 +97,6 @@ def test_every_standing_answer_keeps_its_feet_and_its_balance(male50, shoulder, 
     assert int(out.status) != db.ReachStatus.CONSTRAINT_VIOLATED, out.violation
     moved, inside = _standing_checks(male50, out.pose)
     assert moved < MM and inside >= 0.02 - MM, (moved, inside)
-
-
-def test_a_far_high_reach_to_the_side_says_it_moved_its_feet(male50, shoulder):
-    """A defect, told honestly: 1.4 m in front, 0.3 m to the left and 0.1 m above the
-    shoulder, the standing answer should hold its feet and balance and stop short
-    (CONSTRAINED, as straight ahead); it lifts a foot 1.9 mm and reports
-    CONSTRAINT_VIOLATED with that violation. Of the region's eight corners for the left hand
-    two do so (this one, and (1.4, -0.3, -0.6) by 2.7 mm of balance); the four at 0.75 m are
-    reached, the other two CONSTRAINED. When the solver keeps these, this test fails: make
-    it part of the property above."""
-    out = db.solve_reach(male50, [db.Target.position("left_hand.palm", shoulder + [1.4, 0.3, 0.1])])
-    assert int(out.status) == db.ReachStatus.CONSTRAINT_VIOLATED
-    violation = dict(zip(out.constraint_names, np.asarray(out.violation)))
-    assert violation["on_floor"] > MM and np.isfinite(out.violation).all()
-    assert not bool(out.reached[0])
 
 
 def _excess(body, pose, env=None) -> float:
