@@ -70,7 +70,7 @@ def project_to_standard(body: Body, pose: Pose, keep: np.ndarray | Array) -> Pos
     frames `forward` gives them."""
     given, target = pose, pose.spine_target
     if target is not None:
-        pose = spine_as_angles(body, pose, True)
+        pose = spine_as_angles(body, pose)
         keep = keep | vertebrae_mask(body)
     fk = forward(body, pose)
     deviation = jnp.where(keep, pose.angles[:, 2], 0.0)
@@ -106,12 +106,8 @@ def finish(body: Body, pose: Pose, keep: np.ndarray | Array | None, project=True
     return jax.tree.map(lambda a, c: jnp.where(project, a, c), projected, pose)
 
 
-def spine_as_angles(body: Body, pose: Pose, bent: bool | Array | np.ndarray) -> Pose:
-    """The pose without a spine target: where `bent` (data), its vertebrae set to the
-    angles its target gives (Bendspine from rest, as `forward` bends them); else the pose's
-    own angles. One structure for answers with and without a spine target, so that one
-    compiled conclusion serves both (`_reach.solve_reach`)."""
-    shaped = with_spine_angles(
-        body, body.spine, pose, bend_from_rest(body.spine, pose.spine_target).angles
-    )
-    return Pose(position=pose.position, angles=jnp.where(bent, shaped.angles, pose.angles))
+def spine_as_angles(body: Body, pose: Pose) -> Pose:
+    """The pose without its spine target, its vertebrae set to the angles the target gives
+    them (Bendspine from rest, as `forward` bends them)."""
+    target = bend_from_rest(body.spine, pose.spine_target).angles
+    return with_spine_angles(body, body.spine, pose, target)

@@ -32,13 +32,7 @@ from ..problem._targets import standing as standing_targets
 from ..problem._tree import padded_targets, targets_rows
 from ._attempt import Attempt
 from ._phases import is_none, is_traced, phase_layouts, phase_plans, solve_host, solve_traced
-from ._post_projection import (
-    finish,
-    keep_mask,
-    needs_projection,
-    spine_as_angles,
-    vertebrae_mask,
-)
+from ._post_projection import finish, keep_mask, needs_projection
 
 # solve_reach returns device arrays; solve_reach_batch returns host (numpy) arrays with a
 # leading batch axis.
@@ -171,22 +165,8 @@ def solve_reach(
     back = np.concatenate([back, np.setdiff1d(np.arange(P + A), back)])
     beyond = np.concatenate([beyond, np.zeros(P - n_p, bool)])
     keep, flag = keep_mask(body, final, ts.constraints), device_array(project, bool)
-    target, bent = best.pose.spine_target, None
-    if body.spine is not None:
-        # A spine target always, `bent` saying whether it is the answer's (data): answers
-        # with and without one share the conclusion's program. A bent spine keeps its
-        # twists, as `project_to_standard` keeps a spine target's.
-        bent = np.asarray(target is not None)
-        filled = target if target is not None else np.zeros(3, best.pose.angles.dtype)
-        best = eqx.tree_at(lambda b: b.pose.spine_target, best, filled, is_leaf=is_none)
-        keep = keep | (bent & vertebrae_mask(body))
-    args = (best, padded, back, beyond, steps, tols, True, bent)
-    result = _cut(_conclude_jit(body, keep, flag, *args), len(order))
-    if target is None:
-        return result
-    # The answer names its spine target, its vertebrae where the target bends them.
-    pose = eqx.tree_at(lambda p: p.spine_target, result.pose, target, is_leaf=is_none)
-    return eqx.tree_at(lambda r: r.pose, result, jax.device_put(pose))
+    args = (best, padded, back, beyond, steps, tols, True)
+    return _cut(_conclude_jit(body, keep, flag, *args), len(order))
 
 
 def constrained_targets(
@@ -257,15 +237,10 @@ def _result(
     )
 
 
-def _conclude(
-    body, keep, project, best, ts, back, beyond, steps, tols, padded, bent=None
-) -> ReachResult:
+def _conclude(body, keep, project, best, ts, back, beyond, steps, tols, padded) -> ReachResult:
     """The post-projection (keeping the twists of the mask `keep`, where `project`; none
-    when `keep` is None) and the result (`_result`), in one compiled call. `bent` (data):
-    whether the answer's spine target is its own (`spine_as_angles`; the result's pose then
-    has none, the caller puts it back); None: the pose as it is."""
-    pose = best.pose if bent is None else spine_as_angles(body, best.pose, bent)
-    pose = finish(body, pose, keep, project)
+    when `keep` is None) and the result (`_result`), in one compiled call."""
+    pose = finish(body, best.pose, keep, project)
     return _result(body, pose, best, ts, back, beyond, steps, tols, padded)
 
 
