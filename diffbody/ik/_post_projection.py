@@ -12,6 +12,7 @@ from .._kinematics import forward
 from .._limits import within_limits
 from .._posture import pose_from_joints
 from .._spine import bend_from_rest, with_spine_angles
+from ..problem._constraints import Constraints
 from ..problem._unknowns import Layout, point_segment
 
 # A reset that breaks a limit by more than this (rad) is refused: the posture from joints
@@ -19,7 +20,9 @@ from ..problem._unknowns import Layout, point_segment
 PROJECTION_TOL = 1e-6
 
 
-def twists_to_keep(body: Body, layout: Layout, constraints=None) -> tuple[int, ...]:
+def twists_to_keep(
+    body: Body, layout: Layout, constraints: Constraints | None = None
+) -> tuple[int, ...]:
     """Segments whose twist the projection keeps (static): the whole body, the vertebrae
     the spine moves, every segment at or above an off-axis effector (a feature or an axis
     target turns with the twists above it; joint positions never do), the parent of every
@@ -47,14 +50,14 @@ def twists_to_keep(body: Body, layout: Layout, constraints=None) -> tuple[int, .
     return tuple(sorted(keep))
 
 
-def needs_projection(body: Body, layout: Layout, constraints=None) -> bool:
+def needs_projection(body: Body, layout: Layout, constraints: Constraints | None = None) -> bool:
     """Whether the solver moves a twist that the projection would reset."""
     seg = layout.chain.segments
     moved = {seg[k] for k in layout.twist}
     return bool(moved - set(twists_to_keep(body, layout, constraints)))
 
 
-def keep_mask(body: Body, layout: Layout, constraints=None) -> np.ndarray:
+def keep_mask(body: Body, layout: Layout, constraints: Constraints | None = None) -> np.ndarray:
     """(n_seg,) `twists_to_keep` as a mask."""
     mask = np.zeros(body.n_segments, bool)
     mask[list(twists_to_keep(body, layout, constraints))] = True
