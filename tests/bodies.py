@@ -1,7 +1,12 @@
-"""A small body document covering every kind of segment, for tests that build bodies."""
+"""A small body document covering every kind of segment, for tests that build bodies, and
+spine databases of other lengths built from the shipped one."""
 
 import copy
 import json
+
+import numpy as np
+
+from diffbody.files._data_files import data_file
 
 
 def _sphere(origin, radius, features=()):
@@ -137,3 +142,37 @@ def random_pose(body, rng, *, within_limits=True, position=None):
         )
     pos = body.rest_position if position is None else jnp.asarray(position)
     return db.Pose(position=jnp.asarray(pos), angles=angles)
+
+
+def lumped_spine_doc(n: int) -> dict:
+    """A spine database of `n` joints built from the shipped one's data alone (a shorter
+    chain, as a child's or an animal's, for the spine tests): its 18 joints in `n`
+    contiguous groups, each group one joint that stands for its levels (limits, rest angles
+    and disc heights summed, flexion-axis offsets averaged), moving the group's first
+    segment; the initiator the group holding the shipped one's (T12-L1)."""
+    doc = json.loads(data_file("spine.json").read_text())
+    joints, sizes = doc["joints"], {v["name"]: v["size_mm"] for v in doc["vertebrae"]}
+    groups = np.array_split(np.arange(len(joints)), n)
+    out = []
+    for group in groups:
+        members = [joints[k] for k in group]
+        first = members[0]
+        limits = {
+            rot: [sum(m["limits_deg"][rot][i] for m in members) for i in (0, 1)]
+            for rot in first["limits_deg"]
+        }
+        out.append(
+            dict(
+                name="+".join(m["name"] for m in members),
+                segment=first["segment"],
+                rest_deg=list(np.sum([m["rest_deg"] for m in members], axis=0)),
+                limits_deg=limits,
+                disc_height_mm=sum(m["disc_height_mm"] for m in members),
+                flexion_axis_offset_mm=list(
+                    np.mean([m["flexion_axis_offset_mm"] for m in members], axis=0)
+                ),
+            )
+        )
+    initiator = next(j["name"] for j in out if "T12_L1" in j["name"].split("+"))
+    vertebrae = [dict(name=j["segment"], size_mm=sizes[j["segment"]]) for j in out[1:]]
+    return dict(schema=doc["schema"], initiator=initiator, joints=out, vertebrae=vertebrae)
