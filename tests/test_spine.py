@@ -48,7 +48,7 @@ def chain(request, spine, tmp_path_factory):
 @pytest.fixture(scope="module")
 def bend(chain):
     """bendspine on `chain`, compiled once per zero-interpolation flag; every other input
-    traced. The initiator defaults to the chain's own (T12-L1 or the joint holding it)."""
+    traced. The initiator defaults to joint 9 of the shipped spine (`_at`)."""
     fns = {
         z: jax.jit(
             lambda c, t, i, r, res, rng, z=z: db.bendspine(
@@ -75,7 +75,7 @@ def bend(chain):
         zero_interpolation=True,
     ):
         n = chain.n_joints
-        initiator = chain.initiator if initiator is None else initiator
+        initiator = _at(9, chain) if initiator is None else initiator
         resistor = initiator if resistor is None else resistor
         rng = (0, n - 1) if joint_range is None else joint_range
         return fns[zero_interpolation](
@@ -105,6 +105,11 @@ def _n(spine):
 def _index(f: float, n: int) -> int:
     """A joint index in [0, n) from a uniform f in [0, 1]."""
     return min(int(f * n), n - 1)
+
+
+def _at(k: int, chain) -> int:
+    """The joint of `chain` where joint k of the shipped spine's 18 lies (k itself there)."""
+    return round(k / 17 * (chain.n_joints - 1))
 
 
 unit = st.floats(0.0, 1.0)
@@ -205,12 +210,11 @@ def test_more_resistance_never_moves_the_resistive_region_more(chain, bend, prob
 
 
 def test_full_resistance_keeps_the_resistive_region_until_the_active_one_is_spent(chain, bend):
-    """A lumbar initiator (the next-to-last joint), the resistor above it (on the shipped
-    spine T10-T11): the thorax resists."""
+    """A lumbar initiator (on the shipped spine joint 16, L4-L5), the resistor above it
+    (joint 10, T10-T11): the thorax resists."""
     rest = np.asarray(chain.rest)
     hi = np.asarray(chain.upper)
-    n = _n(chain)
-    init, res = n - 2, round(10 / 17 * (n - 1))
+    init, res = _at(16, chain), _at(10, chain)
     active_room = (hi - rest)[res + 1 :].sum(0)
     small = rest.sum(0) + 0.9 * active_room
     out = np.asarray(bend(rest, small, init, res, 1.0).angles)
@@ -221,12 +225,7 @@ def test_full_resistance_keeps_the_resistive_region_until_the_active_one_is_spen
     assert np.all(np.abs(out[: res + 1] - rest[: res + 1]).sum(0) > 0.01)
 
 
-# Where the bend begins, as a fraction of the chain (on the shipped spine joints 2, 6, 9, 13
-# and 16).
-INITIATORS = [2 / 17, 6 / 17, 9 / 17, 13 / 17, 16 / 17]
-
-
-@pytest.mark.parametrize("where", INITIATORS, ids=lambda f: f"{f:.2f}")
+@pytest.mark.parametrize("where", [2, 6, 9, 13, 16])
 @pytest.mark.parametrize("axis", [0, 1, 2])
 @pytest.mark.parametrize("sign", [1.0, -1.0])
 def test_initiator_moves_most_on_a_fresh_bend(chain, spine, bend, where, axis, sign):
@@ -236,7 +235,7 @@ def test_initiator_moves_most_on_a_fresh_bend(chain, spine, bend, where, axis, s
     rooms, it also moves most; on a chain of lumped joints a joint with five times the
     initiator's room can move more (the global participation P spreads by room)."""
     n = _n(chain)
-    init = round(where * (n - 1))
+    init = _at(where, chain)
     rest = np.asarray(chain.rest)
     room = np.asarray(chain.upper if sign > 0 else chain.lower)[:, axis] - rest[:, axis]
     target = rest.sum(0).copy()
@@ -255,8 +254,7 @@ def test_zero_interpolation_goes_through_the_rest_posture(chain, bend):
     """Yes: crossing the rest posture, every joint is at rest when the sum is the rest sum.
     No: only the limits are interpolated toward, so returning takes another path."""
     rest = np.asarray(chain.rest)
-    n = _n(chain)
-    top, low = round(4 / 17 * (n - 1)), round(14 / 17 * (n - 1))
+    top, low = _at(4, chain), _at(14, chain)
     flexed = np.asarray(bend(rest, rest.sum(0) + np.array([0.5, 0, 0]), top).angles)
     back = [
         np.asarray(bend(flexed, rest.sum(0), low, zero_interpolation=z).angles)
@@ -274,7 +272,7 @@ def test_zero_interpolation_goes_through_the_rest_posture(chain, bend):
 
 def test_gradient_with_respect_to_the_target(chain):
     rest = jnp.asarray(chain.rest)
-    f = jax.jit(lambda t: db.bendspine(chain, rest, t, initiator=chain.initiator).angles)
+    f = jax.jit(lambda t: db.bendspine(chain, rest, t, initiator=_at(9, chain)).angles)
     t0 = rest.sum(0) + jnp.array([0.2, -0.15, 0.1])
     jf, jr = jax.jacfwd(f)(t0), jax.jacrev(f)(t0)
     np.testing.assert_allclose(jf, jr, atol=1e-12)
@@ -291,7 +289,7 @@ def test_vmap_equals_a_loop(chain, bend):
     targets = np.stack(
         [_feasible_target(chain, c, (0, n - 1), rng.uniform(size=3))[0] for c in currents]
     )
-    init = n // 3
+    init = _at(5, chain)
     batched = jax.jit(jax.vmap(lambda c, t: db.bendspine(chain, c, t, initiator=init).angles))(
         currents, targets
     )
@@ -304,7 +302,7 @@ def test_vmap_equals_a_loop(chain, bend):
 @pytest.mark.parametrize("figure", FIGURES)
 def test_the_seeds_figure_targets(chain, bend, figure):
     target = np.asarray(figure) * DEG
-    out = bend(np.asarray(chain.rest), target, round(12 / 17 * (_n(chain) - 1)))
+    out = bend(np.asarray(chain.rest), target, _at(12, chain))
     lo, hi = np.asarray(chain.lower).sum(0), np.asarray(chain.upper).sum(0)
     feasible = (target >= lo) & (target <= hi)
     np.testing.assert_array_equal(np.asarray(out.reached), feasible)
@@ -317,7 +315,7 @@ def test_the_seeds_figure_targets(chain, bend, figure):
 def test_movespine_scans_a_sequence(chain, bend):
     rest = np.asarray(chain.rest)
     n = _n(chain)
-    init = round(8 / 17 * (n - 1))
+    init = _at(8, chain)
     t = np.linspace(0, 1, 9)
     targets = rest.sum(0) + np.stack(
         [0.4 * np.sin(2 * np.pi * t), 0 * t, 0.2 * np.sin(4 * np.pi * t)], -1
