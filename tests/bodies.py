@@ -116,7 +116,6 @@ def random_pose(body, rng, *, within_limits=True, position=None):
     """A random pose: inside the joint limits (swing box within the cone, twist in range), or
     anywhere on the sphere of directions with twists in [-1, 1] rad."""
     import jax.numpy as jnp
-    import numpy as np
 
     import diffbody as db
 

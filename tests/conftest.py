@@ -17,6 +17,7 @@ from hypothesis import HealthCheck, settings
 
 import diffbody as db
 from diffbody._memory_maps import memory_maps
+from diffbody._programs import CPU_OPTIONS
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
@@ -40,13 +41,13 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 # optimisation level halves the compile time of a solver (the sphere-cloud fit: 100 s ->
 # 45 s on one core) for a few times its run time (0.5 s -> 2 s). Results are the same to
 # rounding. The slow tier, benchmarks and users keep the default level.
-# Without XLA's CPU fusion emitters, as diffbody's own solve programs compile
-# (diffbody/_programs.py), every program of the tier compiles about a sixth faster; the answers
-# are the same to rounding (tests/test_programs.py compares a round with and without them).
+# With the options diffbody's own solve programs compile with (`_programs.CPU_OPTIONS`: no CPU
+# fusion emitters) for every program of the tier, which then compiles about a sixth faster; the
+# answers are the same to rounding (tests/test_programs.py compares a round with and without).
 TEST_XLA_FLAGS = (
     "--xla_backend_optimization_level=0",
     "--xla_llvm_disable_expensive_passes=true",
-    "--xla_cpu_use_fusion_emitters=false",
+    *(f"--{name}={str(value).lower()}" for name, value in CPU_OPTIONS.items()),
 )
 
 
