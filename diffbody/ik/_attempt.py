@@ -74,13 +74,16 @@ def _residuals(x: Array, args: tuple[Problem, TargetSet, StopAt]) -> Array:
     return problem.residuals(x, targets)
 
 
-def _close_enough(targets: TargetSet, settings: Settings, n_constraint_rows: int) -> Array:
+def _close_enough(targets: TargetSet, settings: Settings, n_constraint_rows: int, cap) -> StopAt:
     """Per target and constraint row (the first rows of `Problem.rows`), the weighted
-    residual below which the solve may stop early."""
+    residuals below which the solve stops (a hundredth of the tolerance), or stops once it
+    has settled (half the tolerance in each component: within 0.87 of it as a vector, so a
+    settled answer is a reached one); at most `cap` steps."""
     p = jnp.repeat(targets.point_weight * settings.tol_position, 3)
     a = jnp.repeat(targets.axis_weight * settings.tol_angle, 3)
     c = jnp.full(n_constraint_rows, WEIGHT * settings.tol_position)
-    return 0.01 * jnp.concatenate([p, a, c])
+    tol = jnp.concatenate([p, a, c])
+    return StopAt(0.01 * tol, 0.5 * tol, cap)
 
 
 def no_gradient(tree):
@@ -151,9 +154,8 @@ def solve_free(
     if not problem.layout.n_free:
         return x0, jnp.asarray(0), jnp.asarray(True)
     n_constraint_rows = jax.eval_shape(problem.rows, x0, safe).constraints.shape[0]
-    bounds = _close_enough(safe, settings, n_constraint_rows)
     cap = jnp.asarray(max_steps if cap is None else cap)
-    args = (problem, safe, StopAt(bounds, cap))
+    args = (problem, safe, _close_enough(safe, settings, n_constraint_rows, cap))
     solver = reach_solver(x0.dtype) if solver is None else solver
     out = solve(_residuals, solver, x0, args, max_steps)
     return out.value, jnp.asarray(out.steps), out.status != FitStatus.NOT_CONVERGED
