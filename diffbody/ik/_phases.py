@@ -30,7 +30,7 @@ from .._programs import compiled, is_traced
 from .._spine import spine_angles
 from ..problem._problem import make_problem, stiffness_of
 from ..problem._targets import TargetSet
-from ..problem._tree import padded_targets, targets_rows, tree_layout
+from ..problem._tree import padded_targets, tree_layout
 from ..problem._unknowns import Layout, make_layout, point_segment
 from ._attempt import (
     Attempt,
@@ -43,7 +43,8 @@ from ._attempt import (
     round_caps,
     solve_free,
 )
-from ._plans import fits_tree, make_limb_plan, make_plan
+from ._limb_groups import joined, limb_groups
+from ._plans import fits_tree, make_limb_plan, make_plan, padded_errors
 
 
 def is_none(x) -> bool:
@@ -368,7 +369,8 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plan
     """Phases, starts and rounds driven from the host: each runs only if needed. Returns
     the kept `Attempt`, the solver steps over all attempts, and per point target whether it
     lies beyond the reach bound of the last phase tried. `plans` (`phase_plans`): run on
-    the whole tree's program (the attempts' errors then padded to the targets' buckets)."""
+    the whole tree's program (the attempts' errors then padded to the targets' buckets), or
+    a limbs' phase on several limbs on each limb's chain (`_limb_groups`)."""
     best, steps = None, 0
     start_pose = init
     for phase, (layout, ts) in enumerate(zip(layouts, phase_targets_of(layouts, phase_targets))):
@@ -377,33 +379,42 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plan
         if not far.any():
             caps = round_caps(steps_k)
         planned = None if plans is None else plans[phase]
-        limb = planned is not None and planned[1].chain is not None
-        solved = ts if planned is None else padded_targets(ts, limb)
-        for k in range(1 if far.any() else starts):
-            closed = uses_limb_start(phase, ts)
-            a = run_start(body, layout, start_pose, solved, k, caps, tols, closed, planned)
-            if plans is not None and (planned is None or limb):
-                a = padded_errors(a, ts)  # as the whole tree's attempts, for one conclusion
-            steps += int(a.steps)
-            if best is None or bool(better(*jax.tree.map(np.asarray, (a, best)))):
-                best = a
-            if bool(a.ok):
-                return best, steps, beyond
+        closed = uses_limb_start(phase, ts)
+        run = (body, start_pose, caps, 1 if far.any() else starts, closed, tols, plans is not None)
+        groups = None
+        if planned is not None and planned[1].chain is None:
+            groups = limb_groups(body, layout, ts, closed)
+        if groups is None:
+            a, spent = _try_starts(layout, ts, planned, *run)
+        else:
+            tried = [_try_starts(g.layout, g.targets, g.planned, *run) for g in groups]
+            a = padded_errors(joined(start_pose, ts, groups, [a for a, _ in tried]), ts)
+            spent = sum(n for _, n in tried)
+        steps += spent
+        if best is None or bool(better(*jax.tree.map(np.asarray, (a, best)))):
+            best = a
+        if bool(a.ok):
+            return best, steps, beyond
         start_pose = best.pose  # the trunk joins from the limbs' closest reach
     return best, steps, beyond
 
 
-def padded_errors(a: Attempt, ts: TargetSet) -> Attempt:
-    """An attempt's errors (its targets', or a limb chain's bucket of them) padded to the
-    whole tree's buckets (host; `_tree.targets_rows`)."""
-    P, A = targets_rows(ts)
-    n_p, n_a = len(ts.point_index), len(ts.axis_segment)
-
-    def pad(e, n: int, rows: int) -> np.ndarray:
-        return np.concatenate([np.asarray(e)[:n], np.zeros(rows - n)])
-
-    errors = (pad(a.err_p, n_p, P), pad(a.err_a, n_a, A))
-    return eqx.tree_at(lambda a: (a.err_p, a.err_a), a, errors)
+def _try_starts(layout, ts, planned, body, start_pose, caps, starts, closed, tols, pad):
+    """A phase's starts in turn, until one reaches: the best attempt and the steps of all.
+    `pad`: the attempts' errors padded to the whole tree's buckets, for one conclusion."""
+    best, steps = None, 0
+    limb = planned is not None and planned[1].chain is not None
+    solved = ts if planned is None else padded_targets(ts, limb)
+    for k in range(starts):
+        a = run_start(body, layout, start_pose, solved, k, caps, tols, closed, planned)
+        if pad and (planned is None or limb):
+            a = padded_errors(a, ts)
+        steps += int(a.steps)
+        if best is None or bool(better(*jax.tree.map(np.asarray, (a, best)))):
+            best = a
+        if bool(a.ok):
+            break
+    return best, steps
 
 
 def solve_traced(body, layouts, init, phase_targets, starts, max_steps, tols):

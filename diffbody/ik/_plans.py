@@ -18,6 +18,7 @@ from ..problem._tree import (
     tree_entries,
 )
 from ..problem._unknowns import Layout
+from ._attempt import Attempt
 from ._limb_start import limbs
 
 
@@ -134,3 +135,16 @@ def _plan(body, phase, targets, closed, stiffness, entries, n_free, vertebrae, l
 
 def _padded(values: tuple[int, ...], rows: int) -> np.ndarray:
     return np.asarray(list(values) + [0] * (rows - len(values)), int)
+
+
+def padded_errors(a: Attempt, ts: TargetSet) -> Attempt:
+    """An attempt's errors (its targets', or a limb chain's bucket of them) padded to the
+    whole tree's buckets (host; `_tree.targets_rows`)."""
+    P, A = targets_rows(ts)
+    n_p, n_a = len(ts.point_index), len(ts.axis_segment)
+
+    def pad(e, n: int, rows: int) -> np.ndarray:
+        return np.concatenate([np.asarray(e)[:n], np.zeros(rows - n)])
+
+    errors = (pad(a.err_p, n_p, P), pad(a.err_a, n_a, A))
+    return eqx.tree_at(lambda a: (a.err_p, a.err_a), a, errors)

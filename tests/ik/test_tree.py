@@ -135,9 +135,9 @@ def test_the_planned_starts_are_the_phase_s_starts(name, limb):
 
 
 def test_the_tree_answers_are_the_phase_s_answers():
-    """Reachable arm targets, solved on the whole tree's program (two arms) or a limb
-    chain's (one) and on the phase's own: both reach, and the joints agree to 0.1 mm (a
-    converged solve forgets rounding)."""
+    """Reachable arm targets, solved on limb chains' programs (two arms, each its own:
+    `_limb_groups`; one arm) and on the phase's own: both reach, and the joints agree to
+    0.1 mm (a converged solve forgets rounding)."""
     from diffbody.ik import _reach
 
     body = db.load_body()
@@ -149,3 +149,30 @@ def test_the_tree_answers_are_the_phase_s_answers():
         assert int(tree.status) == int(own.status) == 0
         a, b = (np.asarray(db.forward(body, r.pose).joint_positions) for r in (tree, own))
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-4)
+
+
+def test_several_limbs_reach_as_each_limb_alone(monkeypatch):
+    """Targets on both arms (one with its palm's direction) and a leg, the trunk held: the
+    limbs' phase splits them by limb, each on its limb chain (`_limb_groups`), and every
+    joint moves as the one limb's own reach moves it, to 0.1 mm, the rest not at all
+    (reference: each limb's reach alone)."""
+    from diffbody.ik import _phases
+
+    body = db.load_body()
+    rest = np.asarray(db.forward(body, body.rest_pose()).joint_positions)
+    leg = [Target.position("left_ankle", rest[body.joint_index("left_ankle")] + [0.15, 0, 0.1])]
+    hands = CASES["two hands and a direction"]
+    limbs = [hands[:1], hands[1:], leg]
+    found = []
+    split = _phases.limb_groups
+    monkeypatch.setattr(_phases, "limb_groups", lambda *a: found.append(split(*a)) or found[-1])
+    joined = db.solve_reach(body, hands + leg)
+    assert [len(g) for g in found] == [3]
+    assert bool(np.all(joined.reached)), joined.residuals
+    moved = np.zeros_like(rest)
+    for targets in limbs:
+        alone = db.solve_reach(body, targets)
+        assert bool(np.all(alone.reached)), alone.residuals
+        moved += np.asarray(db.forward(body, alone.pose).joint_positions) - rest
+    got = np.asarray(db.forward(body, joined.pose).joint_positions) - rest
+    np.testing.assert_allclose(got, moved, rtol=0, atol=1e-4)
