@@ -88,23 +88,24 @@ def _subset(ts: TargetSet, points: list[int], axes: list[int]) -> TargetSet:
     )
 
 
-def joined(start: Pose, ts: TargetSet, groups: list[LimbGroup], attempts: list[Attempt]) -> Attempt:
-    """The phase's attempt from each limb's (host): the start pose with every limb's
-    segments as its attempt left them, the errors in the phase's target order, reached
-    where every limb reached; the cost and steps summed."""
-    angles = np.array(start.angles)
-    err_p, err_a = np.zeros(len(ts.point_index)), np.zeros(len(ts.axis_segment))
+def joined(start: Pose, ts: TargetSet, groups: list[LimbGroup], attempts: list, put) -> Attempt:
+    """The phase's attempt from each limb's (host; one problem or rows of them): the start
+    pose with every limb's segments as its attempt left them, the errors in the phase's
+    target order, reached where every limb reached, the cost and steps summed. `put`: how
+    a joined array is kept (`device_array` for a single solve, `np.asarray` for a batch)."""
+    first = attempts[0]
+    angles = np.array(np.broadcast_to(np.asarray(start.angles), np.shape(first.pose.angles)))
+    lead = np.shape(first.ok)
+    err_p = np.zeros(lead + (len(ts.point_index),), angles.dtype)
+    err_a = np.zeros(lead + (len(ts.axis_segment),), angles.dtype)
     for g, a in zip(groups, attempts):
-        angles[g.moves] = np.asarray(a.pose.angles)[g.moves]
-        err_p[g.points] = np.asarray(a.err_p)[: len(g.points)]
-        err_a[g.axes] = np.asarray(a.err_a)[: len(g.axes)]
-    pose = eqx.tree_at(lambda p: p.angles, attempts[0].pose, device_array(angles, angles.dtype))
-    dtype = angles.dtype
-    return Attempt(
-        pose=pose,
-        err_p=device_array(err_p, dtype),
-        err_a=device_array(err_a, dtype),
-        ok=device_array(all(bool(a.ok) for a in attempts), bool),
-        cost=device_array(sum(float(a.cost) for a in attempts), dtype),
-        steps=device_array(sum(int(a.steps) for a in attempts), int),
+        angles[..., g.moves, :] = np.asarray(a.pose.angles)[..., g.moves, :]
+        err_p[..., g.points] = np.asarray(a.err_p)[..., : len(g.points)]
+        err_a[..., g.axes] = np.asarray(a.err_a)[..., : len(g.axes)]
+    over = lambda field: np.stack([np.asarray(getattr(a, field)) for a in attempts])  # noqa: E731
+    parts = (angles, err_p, err_a, over("ok").all(0), over("cost").sum(0), over("steps").sum(0))
+    return eqx.tree_at(
+        lambda a: (a.pose.angles, a.err_p, a.err_a, a.ok, a.cost, a.steps),
+        first,
+        tuple(put(v) for v in parts),
     )

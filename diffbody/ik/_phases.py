@@ -25,6 +25,7 @@ from jaxtyping import Array, ArrayLike
 
 from .._body import Body, Pose
 from .._body_cache import RANGES, BodyCache
+from .._device_arrays import device_array
 from .._kinematics import Links, forward
 from .._programs import compiled, is_traced
 from .._spine import spine_angles
@@ -388,7 +389,8 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plan
             a, spent = _try_starts(layout, ts, planned, *run)
         else:
             tried = [_try_starts(g.layout, g.targets, g.planned, *run) for g in groups]
-            a = padded_errors(joined(start_pose, ts, groups, [a for a, _ in tried]), ts)
+            a = joined(start_pose, ts, groups, [a for a, _ in tried], put=_on_device)
+            a = padded_errors(a, ts)
             spent = sum(n for _, n in tried)
         steps += spent
         if best is None or bool(better(*jax.tree.map(np.asarray, (a, best)))):
@@ -397,6 +399,10 @@ def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plan
             return best, steps, beyond
         start_pose = best.pose  # the trunk joins from the limbs' closest reach
     return best, steps, beyond
+
+
+def _on_device(a: ArrayLike) -> Array:
+    return device_array(a, np.asarray(a).dtype)
 
 
 def _try_starts(layout, ts, planned, body, start_pose, caps, starts, closed, tols, pad):

@@ -3,31 +3,32 @@
 when there are several; written to a file as it goes and over processes: `_batch_run`.
 """
 
+import dataclasses
 import functools
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike
+from jaxtyping import ArrayLike
 
 from .._body import Body, Pose
-from .._device_arrays import device_array
 from .._programs import compiled
 from .._spine import spine_angles
 from ..files._targets_file import read_targets
-from ..problem._constraints import is_constraint, pose_violations
-from ..problem._targets import Target, TargetSet, resolve_targets
+from ..problem._constraints import pose_violations
+from ..problem._targets import Target
+from ..problem._tree import padded_targets
 from ..problem._unknowns import Layout
-from ..runs._batches import bucket, chunk_rows, map_chunks, put_rows, row_sharding, take_rows
+from ..runs._batches import map_chunks, put_rows, take_rows
 from ._attempt import Attempt, Settings, attempt_round, better, phase_steps, round_caps
-from ._phases import is_none, phase_layouts, phase_plan, phase_targets_of, uses_limb_start
-from ._plans import limb_plans
+from ._batch_setup import Setup, prepare
+from ._limb_groups import LimbGroup, joined, limb_groups
+from ._phases import is_none, phase_plan
 from ._post_projection import finish, keep_mask, needs_projection
-from ._reach import ReachResult, check_settings, constrained_targets, reach_status
+from ._reach import ReachResult, reach_status
 
 
 def _round_rows(body, layout, inits, template, xyz, x, ks, fresh, cap, settings, plan=None):
@@ -54,12 +55,6 @@ def _finish_rows(body, poses, keep):
 # starts, rounds and round caps (the start index and the cap are data).
 _round_rows_jit = compiled(_round_rows)
 _finish_rows_jit = compiled(_finish_rows)
-
-# Rows per compiled call of the passes over the rows that still miss (further rounds and
-# starts, the trunk's phase), when fewer than half a chunk: the few rows left after the
-# first round run in chunks their size, not padded to a whole chunk (one more compiled
-# shape, for batches larger than this).
-RETRY_ROWS = 64
 
 
 def solve_reach_batch(
@@ -122,112 +117,15 @@ def solve_reach_batch(
     effectors = [effectors] if isinstance(effectors, str) else list(effectors)
     if isinstance(positions, (str, os.PathLike)):  # read whole
         positions = read_targets(positions, len(effectors))
-    s = _prepare(body, effectors, positions, **settings)
+    s = prepare(body, effectors, positions, **settings)
     if not len(s.xyz):
         return _empty_result(s)
     best, steps, beyond = _solve_rows(s)
     return _batch_result(s, _project(s, best), steps, beyond)
 
 
-def check_batch(body: Body, effectors: Sequence[str], **settings) -> None:
-    """Refuse bad settings of `solve_reach_batch` (as it would) before any row is read."""
-    _prepare(body, effectors, np.zeros((1, len(effectors), 3)), **settings)
-
-
 # --- the steps of solve_reach_batch ----------------------------------------------------------
-@dataclass(frozen=True)
-class _Setup:
-    """What the steps of a batch solve share, checked and prepared on the host."""
-
-    body: Body
-    xyz: np.ndarray  # (n, k, 3) m
-    templates: list[TargetSet]  # per phase, the targets of one row (positions replaced)
-    plans: list  # per phase, its limb chain's layout, plan and padded targets, or None
-    closed: list[bool]  # per phase, whether its first start is the closed-form limb start
-    init: Pose
-    layouts: list[Layout]  # the phases
-    starts: int
-    max_steps: int
-    tol_position: float  # m, as given
-    tols: tuple[Array, Array]  # m, rad: the solver's tolerances
-    chunk: int  # rows per compiled call, a multiple of the device count
-    retry_chunk: int  # rows per compiled call of a pass over fewer than half a chunk
-    sharding: jax.sharding.Sharding
-    progress: bool
-
-
-def _prepare(
-    body: Body,
-    effectors,
-    positions,
-    *,
-    init,
-    chunk_size,
-    progress,
-    devices,
-    spine,
-    standing,
-    constraints,
-    segments,
-    starts,
-    max_steps,
-    tol_position,
-) -> _Setup:
-    """Check the arguments (host) and prepare the solve: positions as (n, k, 3), the
-    targets' template, the phases' layouts, the chunk size and the devices' sharding."""
-    effectors = [effectors] if isinstance(effectors, str) else list(effectors)
-    k = len(effectors)
-    xyz = np.asarray(positions, dtype=float)
-    if k == 1 and xyz.ndim == 2:
-        xyz = xyz[:, None, :]
-    if k == 0 or xyz.ndim != 3 or xyz.shape[1:] != (k, 3):
-        raise ValueError(
-            f"solve_reach_batch: positions must have shape (n, {k}, 3) for {k} effector(s)"
-            + (" or (n, 3)" if k == 1 else "")
-            + f", got {np.shape(positions)}"
-        )
-    check_settings(starts=starts, max_steps=max_steps, tol_position=tol_position, tol_angle=1.0)
-    template, _ = resolve_targets(body, [Target.position(e, np.zeros(3)) for e in effectors])
-    default_init = init is None
-    init = body.rest_pose() if default_init else init
-    constraints = list(constraints)
-    if not all(isinstance(c, Target) and is_constraint(c) for c in constraints):
-        raise TypeError(
-            "solve_reach_batch: constraints must be Target.no_contact / .on_floor / .balance"
-        )
-    stand = standing and segments is None
-    phase_targets = constrained_targets(body, template, constraints, init, stand, default_init)
-    layouts = phase_layouts(
-        body, phase_targets, spine=spine, free_root=False, segments=segments, stand=stand
-    )
-    templates = phase_targets_of(layouts, phase_targets)
-    closed = [uses_limb_start(k, templates[0]) for k in range(len(layouts))]
-    n = xyz.shape[0]
-    devices = list(jax.local_devices() if devices is None else devices)
-    # Power-of-two buckets: 17 and 32 rows run one program (a row costs little beside a call).
-    chunk = chunk_rows(chunk_size, bucket(n), len(devices))
-    dtype = jnp.result_type(float)
-    tols = (device_array(tol_position, dtype), device_array(np.deg2rad(1.0), dtype))
-    return _Setup(
-        body=body,
-        xyz=xyz,
-        templates=templates,
-        plans=limb_plans(body, layouts, templates, closed),
-        closed=closed,
-        init=init,
-        layouts=layouts,
-        starts=starts,
-        max_steps=max_steps,
-        tol_position=tol_position,
-        tols=tols,
-        chunk=chunk,
-        retry_chunk=chunk_rows(min(chunk, RETRY_ROWS), bucket(n), len(devices)),
-        sharding=row_sharding(devices),
-        progress=progress,
-    )
-
-
-def _round(s: _Setup, phase: int, rows, poses: Pose | None, x, ks, fresh, cap, label):
+def _round(s: Setup, phase: int, rows, poses: Pose | None, x, ks, fresh, cap, label):
     """One round of a phase's rows (their start poses, None: all from s.init; free vectors,
     start indices and whether each begins its start), in chunks: the free vectors, whether
     each solve ended, the attempts. A limb chain's phase runs on its program (`_tree`): the
@@ -260,7 +158,7 @@ def _round(s: _Setup, phase: int, rows, poses: Pose | None, x, ks, fresh, cap, l
     return x, done, a
 
 
-def _empty_result(s: _Setup) -> ReachResult:
+def _empty_result(s: Setup) -> ReachResult:
     """The result of no rows, its shapes from the abstract evaluation."""
     k = s.xyz.shape[1]
     poses = jax.tree.map(lambda a: jnp.asarray(a)[None], s.init)
@@ -282,39 +180,30 @@ def _empty_result(s: _Setup) -> ReachResult:
     return _batch_result(s, empty, np.zeros(0, int), np.zeros((0, k), bool))
 
 
-def _solve_rows(s: _Setup) -> tuple[Attempt, np.ndarray, np.ndarray]:
-    """The phases over the rows: in each, the starts in turn (`_start`) over the rows that
-    still miss, a row out of the phase's reach trying the first start only; the next phase
-    (the trunk) takes the rows still missed from the limbs' closest reach. Returns the kept
-    attempts, the steps (n,) and `beyond` (n, k)."""
+def _solve_rows(s: Setup) -> tuple[Attempt, np.ndarray, np.ndarray]:
+    """The phases over the rows: in each (`_phase`), the starts in turn over the rows that
+    still miss; the next phase (the trunk) takes the rows still missed from the limbs'
+    closest reach. A limbs' phase on several limbs runs each limb's targets on its own limb
+    chain (`_limb_groups`). Returns the kept attempts, the steps (n,) and `beyond` (n, k)."""
     n, k = s.xyz.shape[:2]
-    best = None
-    steps = np.zeros(n, int)
-    beyond = np.zeros((n, k), bool)
+    best, steps = None, np.zeros(n, int)
     start_poses = None  # every row from s.init
     todo = np.arange(n)
-    for phase, layout in enumerate(s.layouts):
-        steps_k = phase_steps(layout, s.max_steps)
-        beyond, far, far_caps = phase_plan(s.body, s.layouts, phase, s.init, s.xyz, steps_k)
-        far = far.any(-1)
-        rows = todo
-        for start in range(s.starts):
-            left = s.starts - start
-            tail = start > 0 and len(rows) * left <= s.retry_chunk
-            run = _side_by_side if tail else _start
-            a, spent = run(s, layout, phase, start_poses, rows, start, far, far_caps)
-            steps[rows] += spent
-            if best is not None and best.pose.spine_target is None:
-                if a.pose.spine_target is not None:
-                    best = _with_spine_target(s, best)
-            if best is None:
-                best = a
-            else:
-                take = better(a, take_rows(best, rows))
-                best = put_rows(best, rows[take], take_rows(a, take))
-            rows = rows[~a.ok & ~far[rows]]
-            if tail or not len(rows):
-                break
+    for phase in range(len(s.layouts)):
+        groups = None
+        if phase == 0 and s.plans[0] is None and s.body.root_joint == s.body.default_root_joint:
+            groups = limb_groups(s.body, s.layouts[0], s.templates[0], s.closed[0])
+        if groups is None:
+            best, spent, beyond = _phase(s, phase, start_poses, todo, best)
+        else:
+            subs = [_limb_setup(s, g) for g in groups]
+            tried = [_phase(sub, 0, None, todo, None) for sub in subs]
+            best = joined(s.init, s.templates[0], groups, [t[0] for t in tried], put=np.asarray)
+            spent = sum(t[1] for t in tried)
+            beyond = np.zeros((n, k), bool)
+            for g, t in zip(groups, tried):
+                beyond[:, g.points] = t[2]
+        steps += spent
         todo = np.flatnonzero(~best.ok)
         if not len(todo):
             break
@@ -322,8 +211,52 @@ def _solve_rows(s: _Setup) -> tuple[Attempt, np.ndarray, np.ndarray]:
     return best, steps, beyond
 
 
+def _limb_setup(s: Setup, g: LimbGroup) -> Setup:
+    """The batch of one limb's targets in the limbs' phase, on its limb chain."""
+    limb, plan = g.planned
+    return dataclasses.replace(
+        s,
+        xyz=s.xyz[:, g.points],
+        templates=[g.targets],
+        plans=[(limb, plan, padded_targets(g.targets, limb=True))],
+        closed=s.closed[:1],
+        layouts=[g.layout],
+    )
+
+
+def _phase(s: Setup, phase: int, start_poses, todo, best):
+    """One phase over the rows `todo`: its starts in turn (`_start`, or side by side for
+    the last few rows) over the rows that still miss, a row out of the phase's reach trying
+    the first start only. Returns the kept attempts (with `best`'s other rows), the steps
+    (n,) and `beyond` (n, k)."""
+    steps = np.zeros(len(s.xyz), int)
+    layout = s.layouts[phase]
+    steps_k = phase_steps(layout, s.max_steps)
+    beyond, far, far_caps = phase_plan(s.body, s.layouts, phase, s.init, s.xyz, steps_k)
+    far = far.any(-1)
+    rows = todo
+    for start in range(s.starts):
+        left = s.starts - start
+        tail = start > 0 and len(rows) * left <= s.retry_chunk
+        run = _side_by_side if tail else _start
+        a, spent = run(s, layout, phase, start_poses, rows, start, far, far_caps)
+        steps[rows] += spent
+        if best is not None and best.pose.spine_target is None:
+            if a.pose.spine_target is not None:
+                best = _with_spine_target(s, best)
+        if best is None:
+            best = a
+        else:
+            take = better(a, take_rows(best, rows))
+            best = put_rows(best, rows[take], take_rows(a, take))
+        rows = rows[~a.ok & ~far[rows]]
+        if tail or not len(rows):
+            break
+    return best, steps, beyond
+
+
 def _start(
-    s: _Setup, layout: Layout, phase: int, start_poses: Pose | None, rows, start, far, far_caps
+    s: Setup, layout: Layout, phase: int, start_poses: Pose | None, rows, start, far, far_caps
 ) -> tuple[Attempt, np.ndarray]:
     """Start `start` of rows `rows` in rounds, each round over the rows whose solve goes on
     (a row out of reach: `far_caps`). Returns the attempts and the steps of each row."""
@@ -352,7 +285,7 @@ def _start(
 
 
 def _side_by_side(
-    s: _Setup, layout: Layout, phase: int, start_poses: Pose | None, rows, start, far, far_caps
+    s: Setup, layout: Layout, phase: int, start_poses: Pose | None, rows, start, far, far_caps
 ) -> tuple[Attempt, np.ndarray]:
     """Starts `start`.. of rows `rows` side by side (one lane per row and start, in rounds),
     for the few rows left: a call's cost barely depends on its rows, so the tail of hard
@@ -370,7 +303,7 @@ def _side_by_side(
     return eqx.tree_at(lambda a: a.steps, chosen, spent), spent
 
 
-def _with_spine_target(s: _Setup, best: Attempt) -> Attempt:
+def _with_spine_target(s: Setup, best: Attempt) -> Attempt:
     """The limbs' attempts with the spine, left as in init, named as its target, so that
     both phases' poses share one structure."""
     total = np.asarray(spine_angles(s.body, s.body.spine, s.init).sum(0))
@@ -380,7 +313,7 @@ def _with_spine_target(s: _Setup, best: Attempt) -> Attempt:
     )
 
 
-def _project(s: _Setup, best: Attempt) -> Attempt:
+def _project(s: Setup, best: Attempt) -> Attempt:
     """The rows' poses after the post-projection, when the final phase needs one."""
     final = s.layouts[-1]
     c = s.templates[-1].constraints
@@ -391,7 +324,7 @@ def _project(s: _Setup, best: Attempt) -> Attempt:
     return eqx.tree_at(lambda b: b.pose, best, poses)
 
 
-def _over_poses(s: _Setup, fn, poses: Pose, label: str):
+def _over_poses(s: Setup, fn, poses: Pose, label: str):
     """fn over the rows' poses, in the setup's chunks and sharding."""
     return map_chunks(
         fn,
@@ -404,7 +337,7 @@ def _over_poses(s: _Setup, fn, poses: Pose, label: str):
     )
 
 
-def _batch_result(s: _Setup, best: Attempt, steps, beyond) -> ReachResult:
+def _batch_result(s: Setup, best: Attempt, steps, beyond) -> ReachResult:
     """Per-row results as host arrays (no axis targets in a batch); each row's constraint
     violations from its pose (`pose_violations`)."""
     xyz, tol_position = s.xyz, s.tol_position

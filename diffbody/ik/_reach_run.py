@@ -11,7 +11,8 @@ from jaxtyping import ArrayLike
 from .._body import Body, Pose
 from ..problem._targets import Target
 from ..runs._batch_run import BatchRun, stream_reach_batch
-from ._reach_batch import check_batch, solve_reach_batch
+from ._batch_setup import check_batch
+from ._reach_batch import solve_reach_batch
 
 
 def run_reach_batch(

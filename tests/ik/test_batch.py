@@ -114,6 +114,29 @@ def test_another_limb_compiles_nothing(male50, batch):
     np.testing.assert_allclose(arm.residuals, batch.residuals, atol=1e-6)
 
 
+def test_several_limbs_run_on_their_limb_chains(male50, batch):
+    """Rows with a target on each hand: the limbs' phase runs each arm's columns as a batch
+    on its limb chain (`_limb_groups`), compiling nothing after the one-arm batches (a
+    regression: such batches compiled their phase's own layout), and each row is what
+    `solve_reach` gives it, to rounding."""
+    right = ROWS * [1.0, -1.0, 1.0]
+    arms = list(ARM) + [name.replace("left", "right") for name in ARM]
+    effectors = ["left_hand.palm", "right_hand.palm"]
+    with counted_compiles() as seen:
+        out = solve_reach_batch(
+            male50, effectors, np.stack([ROWS, right], axis=1), chunk_size=CHUNK,
+            progress=False, segments=arms, starts=1,
+        )  # fmt: skip
+    assert seen == []
+    assert out.residuals.shape == (4, 2) and out.reached.all(), out.residuals
+    for i in range(len(ROWS)):
+        targets = [db.Target.position(e, xyz) for e, xyz in zip(effectors, (ROWS[i], right[i]))]
+        one = db.solve_reach(male50, targets, segments=arms, starts=1)
+        np.testing.assert_allclose(out.residuals[i], np.asarray(one.residuals), atol=1e-12)
+        np.testing.assert_allclose(out.pose.angles[i], np.asarray(one.pose.angles), atol=1e-9)
+        assert int(out.steps[i]) == int(one.steps)
+
+
 def test_rows_the_limbs_miss_go_on_to_the_trunk(male50, batch):
     """The limbs' phase on a limb chain, then the trunk's on its own layout for the row the
     arm cannot reach: both phases' attempts merge (regression: the limb chain's pad axis
