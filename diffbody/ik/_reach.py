@@ -32,7 +32,13 @@ from ..problem._targets import standing as standing_targets
 from ..problem._tree import padded_targets, targets_rows
 from ._attempt import Attempt
 from ._phases import is_none, is_traced, phase_layouts, phase_plans, solve_host, solve_traced
-from ._post_projection import finish, keep_mask, needs_projection
+from ._post_projection import (
+    finish,
+    keep_mask,
+    needs_projection,
+    spine_as_angles,
+    vertebrae_mask,
+)
 
 # solve_reach returns device arrays; solve_reach_batch returns host (numpy) arrays with a
 # leading batch axis.
@@ -165,8 +171,14 @@ def solve_reach(
     back = np.concatenate([back, np.setdiff1d(np.arange(P + A), back)])
     beyond = np.concatenate([beyond, np.zeros(P - n_p, bool)])
     keep, flag = keep_mask(body, final, ts.constraints), device_array(project, bool)
-    args = (best, padded, back, beyond, steps, tols, True)
-    return _cut(_conclude_jit(body, keep, flag, *args), len(order))
+    # Whether the trunk bent the spine is data too: a limbs' answer takes a zero spine
+    # target that the conclusion ignores, so both answers share its program.
+    bent = best.pose.spine_target is not None
+    if body.spine is not None and not bent:
+        zero = np.zeros(3, np.asarray(best.pose.angles).dtype)
+        best = eqx.tree_at(lambda b: b.pose.spine_target, best, zero, is_leaf=is_none)
+    args = (best, padded, back, beyond, steps, tols, True, device_array(bent, bool))
+    return _cut(_conclude_jit(body, keep, flag, *args), len(order), bent)
 
 
 def constrained_targets(
@@ -237,17 +249,33 @@ def _result(
     )
 
 
-def _conclude(body, keep, project, best, ts, back, beyond, steps, tols, padded) -> ReachResult:
+def _conclude(
+    body, keep, project, best, ts, back, beyond, steps, tols, padded, bent=None
+) -> ReachResult:
     """The post-projection (keeping the twists of the mask `keep`, where `project`; none
-    when `keep` is None) and the result (`_result`), in one compiled call."""
-    pose = finish(body, best.pose, keep, project)
-    return _result(body, pose, best, ts, back, beyond, steps, tols, padded)
+    when `keep` is None) and the result (`_result`), in one compiled call. `bent` (data):
+    whether the pose's spine target bends the spine; where not, the target is a stand-in
+    and the vertebrae keep the pose's angles."""
+    if bent is None:
+        pose = finish(body, best.pose, keep, project)
+        return _result(body, pose, best, ts, back, beyond, steps, tols, padded)
+    target = best.pose.spine_target
+    # The vertebrae where the target bends them, as angles (`project_to_standard` does
+    # the same for a pose with a target), else as they are.
+    angles = jnp.where(bent, spine_as_angles(body, best.pose).angles, best.pose.angles)
+    keep = keep | (bent & vertebrae_mask(body))
+    pose = finish(body, Pose(position=best.pose.position, angles=angles), keep, project)
+    result = _result(body, pose, best, ts, back, beyond, steps, tols, padded)
+    return eqx.tree_at(lambda r: r.pose.spine_target, result, target, is_leaf=is_none)
 
 
-def _cut(result: ReachResult, n: int) -> ReachResult:
+def _cut(result: ReachResult, n: int, bent: bool = True) -> ReachResult:
     """The result's per-target arrays cut to the first n (the padded rows dropped on the
-    host and put back: no program compiled)."""
+    host and put back: no program compiled), and the spine target dropped where the
+    spine was not `bent` (`_conclude`)."""
     cut = lambda a: jax.device_put(np.asarray(a)[:n])  # noqa: E731
+    if not bent:
+        result = eqx.tree_at(lambda r: r.pose.spine_target, result, None)
     return eqx.tree_at(
         lambda r: (r.reached, r.residuals, r.valid, r.beyond),
         result,

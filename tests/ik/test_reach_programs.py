@@ -75,6 +75,41 @@ def test_a_standing_solve_compiles_each_phase_once(male50, monkeypatch):
     assert "_forward" not in names, names
 
 
+def test_an_arm_reach_after_a_standing_one_compiles_nothing(male50, monkeypatch):
+    """A regression: the conclusion of a limbs' answer (no spine target) compiled a program
+    of its own (1.3 s) beside the one of a standing answer (a spine target). Whether the
+    spine is bent is data now: after a far standing reach alone, in a fresh state, an arm
+    reach compiles nothing."""
+    jax.clear_caches()
+    monkeypatch.setattr(_programs, "_LOADED", {})
+    monkeypatch.setattr(_programs, "_SEEN", {})
+    far = db.solve_reach(male50, [Target.position("left_hand.palm", (0.3, 0.9, 0.8))])
+    assert far.pose.spine_target is not None  # the trunk joined
+    with counted_compiles() as seen:
+        out = db.solve_reach(male50, [Target.position("right_wrist", (-0.25, 0.3, 1.15))])
+    assert seen == []
+    assert int(out.status) == 0 and out.pose.spine_target is None
+
+
+def test_a_limbs_answer_keeps_the_vertebrae_of_its_start(male50):
+    """The conclusion's stand-in spine target (zero, where the spine is not bent) moves
+    nothing: from a start with a bent spine, an arm reach keeps every vertebra's angles
+    exactly, has no spine target, and its palm is on the target (reference: the angles of
+    the start)."""
+    spine, bend = male50.spine, np.deg2rad([15.0, 5.0, 8.0])
+    init = db.bend_pose(male50, spine, male50.rest_pose(), bend, initiator=spine.initiator)[0]
+    target = (0.3, 0.35, 1.05)
+    out = db.solve_reach(male50, [Target.position("left_hand.palm", target)], init=init)
+    assert int(out.status) == 0 and out.pose.spine_target is None
+    vertebrae = [male50.segment_index(name) for name in male50.spine.segment_names]
+    np.testing.assert_array_equal(
+        np.asarray(out.pose.angles)[vertebrae], np.asarray(init.angles)[vertebrae]
+    )
+    fk = db.forward(male50, out.pose)
+    palm = fk.feature_points[male50.feature_names.index("left_hand.palm")]
+    assert np.linalg.norm(np.asarray(palm) - target) < 1e-3
+
+
 def test_new_effectors_subsets_and_row_counts_compile_nothing(male50):
     """One program per body and bucket for the limbs' phase: a limb chain's (one arm or leg,
     `_tree.limb_layout`; several limbs, each on its own: `_limb_groups`). After a reach of
