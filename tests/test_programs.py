@@ -193,3 +193,36 @@ def test_a_reach_read_back_from_its_kept_programs_is_the_same(export_folder, mal
     assert int(again.status) == int(first.status) == 0
     np.testing.assert_array_equal(again.pose.angles, first.pose.angles)
     assert again.constraint_names == first.constraint_names
+
+
+def _scaled_rows(x, w, scale: float):
+    """Rows x (n, 3) times a shared w (3,): records each trace."""
+    TRACED.append(x.shape)
+    return scale * x * w
+
+
+def _by_row_count(x):
+    """A function whose row count decides a branch: no symbolic row count goes through."""
+    return x + 1.0 if x.shape[0] > 4 else x - 1.0
+
+
+def test_row_counts_share_one_trace_and_one_kept_program(export_folder):
+    """A function compiled with `rows` is traced and kept once for every row count, the
+    shared argument's shape fixed: XLA compiles each row count (two here), and the answers
+    are the NumPy reference's. One whose row count decides a branch cannot be exported
+    with a symbolic count: it takes the plain path, each count its own trace and answer."""
+    TRACED.clear()
+    f = _programs.compiled(_scaled_rows, rows=(0,))
+    w = np.asarray([1.0, 2.0, 3.0], np.float32)
+    with counted_compiles() as compiles:
+        for n in (4, 8, 4):
+            x = np.arange(3 * n, dtype=np.float32).reshape(n, 3)
+            np.testing.assert_allclose(f(x, w, 2.0), 2.0 * x * w, rtol=1e-6)
+    assert len(TRACED) == 1 and not isinstance(TRACED[0][0], int)  # traced symbolically
+    assert len(compiles) == 2 and len(list(export_folder.glob("*.bin"))) == 1
+    g = _programs.compiled(_by_row_count, rows=(0,))
+    for _ in range(2):
+        np.testing.assert_allclose(g(np.zeros((8, 2), np.float32)), np.ones((8, 2)))
+        np.testing.assert_allclose(g(np.zeros((2, 2), np.float32)), -np.ones((2, 2)))
+    assert len(list(export_folder.glob("*.bin"))) == 1
+    assert sum(key is None for key in _programs._SEEN.values()) == 2  # not tried again

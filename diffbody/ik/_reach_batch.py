@@ -46,15 +46,28 @@ def _round_rows(body, layout, inits, template, xyz, x, ks, fresh, cap, settings,
     return jax.vmap(one, in_axes=(None if shared else 0, 0, 0, 0, 0))(inits, xyz, x, ks, fresh)
 
 
+def _round_shared(body, layout, init, template, xyz, x, ks, fresh, cap, settings, plan=None):
+    """`_round_rows` from one start pose shared by every row."""
+    return _round_rows(body, layout, init, template, xyz, x, ks, fresh, cap, settings, plan)
+
+
 def _finish_rows(body, poses, keep):
     """`finish` vmapped over the rows' poses."""
     return jax.vmap(lambda p: finish(body, p, keep))(poses)
 
 
+def _violations_rows(body, poses, constraints):
+    """`pose_violations` vmapped over the rows' poses."""
+    return jax.vmap(lambda p: pose_violations(body, p, constraints))(poses)
+
+
 # One compiled function per (body structure, layout, chunk size), shared by all chunks,
-# starts, rounds and round caps (the start index and the cap are data).
-_round_rows_jit = compiled(_round_rows)
-_finish_rows_jit = compiled(_finish_rows)
+# starts, rounds and round caps (the start index and the cap are data); every chunk size
+# is traced once (the rows' axis symbolic: `_programs.compiled`).
+_round_rows_jit = compiled(_round_rows, rows=(2, 4, 5, 6, 7))
+_round_shared_jit = compiled(_round_shared, rows=(4, 5, 6, 7))
+_finish_rows_jit = compiled(_finish_rows, rows=(1,))
+_violations_jit = compiled(_violations_rows, rows=(1,))
 
 
 def solve_reach_batch(
@@ -141,15 +154,16 @@ def _round(s: Setup, phase: int, rows, poses: Pose | None, x, ks, fresh, cap, la
         xyz = np.concatenate([xyz, np.full((len(rows), P - xyz.shape[1], 3), np.nan)], axis=1)
     cap = np.asarray(cap, np.int32)  # data: every round cap shares one program
 
-    def fn(p, xyz, x, k, f):
+    def fn(p, xyz, x, k, f, program=_round_rows_jit):
         args = (s.body, layout, p, template, xyz, x, k, f, cap, Settings(*s.tols, closed), plan)
-        return _round_rows_jit(*args)
+        return program(*args)
 
     chunk = s.chunk if 2 * len(rows) > s.chunk else s.retry_chunk
     arrays = (xyz, x, ks, fresh)
     opts = dict(chunk=chunk, sharding=s.sharding, progress=s.progress, label=label, unit="solve")
     if poses is None:  # every row starts from s.init
-        x, done, a = map_chunks(functools.partial(fn, s.init), arrays, **opts)
+        shared = functools.partial(fn, s.init, program=_round_shared_jit)
+        x, done, a = map_chunks(shared, arrays, **opts)
     else:
         x, done, a = map_chunks(fn, (poses,) + arrays, **opts)
     if planned is not None:
@@ -362,8 +376,3 @@ def _batch_result(s: Setup, best: Attempt, steps, beyond) -> ReachResult:
         violation=violation,
         constraint_names=() if c is None else c.kinds,
     )
-
-
-_violations_jit = eqx.filter_jit(
-    lambda body, poses, c: jax.vmap(lambda p: pose_violations(body, p, c))(poses)
-)
