@@ -106,8 +106,9 @@ def fit_many(template, lay, init, clouds, align, tables) -> Fitted:
 
 
 # One compiled fit per (body structure, layout, cloud size, start, chunk): a single cloud is
-# a chunk of one, so `fit_spheres` and a batch of chunk_size=1 share their program.
-_fit_many_jit = compiled(fit_many)
+# a chunk of one, so `fit_spheres` and a batch of chunk_size=1 share their program, and every
+# chunk size is traced once (the clouds' axis symbolic: `_programs.compiled`).
+_fit_many_jit = compiled(fit_many, rows=(3,))
 
 
 # --- the public functions ------------------------------------------------------------------
