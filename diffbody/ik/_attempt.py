@@ -22,7 +22,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._body import Body, Pose
 from .._solver import FitStatus, StopAt, least_squares_solver, solve, tolerance
-from ..problem._constraints import WEIGHT
+from ..problem._constraints import WEIGHT, row_count
 from ..problem._problem import Problem, make_problem
 from ..problem._targets import TargetSet, mask_invalid
 from ..problem._tree import Plan
@@ -153,7 +153,7 @@ def solve_free(
     x0 = jnp.where(fresh, x0, x)
     if not problem.layout.n_free:
         return x0, jnp.asarray(0), jnp.asarray(True)
-    n_constraint_rows = jax.eval_shape(problem.rows, x0, safe).constraints.shape[0]
+    n_constraint_rows = row_count(safe.constraints)
     cap = jnp.asarray(max_steps if cap is None else cap)
     args = (problem, safe, _close_enough(safe, settings, n_constraint_rows, cap))
     solver = reach_solver(x0.dtype) if solver is None else solver

@@ -273,6 +273,17 @@ def constraint_rows(
     return jnp.concatenate(rows), jnp.stack(worst)
 
 
+def row_count(c: Constraints | None) -> int:
+    """The number of `constraint_rows` (static), from their shapes alone: no walk traced."""
+    if c is None:
+        return 0
+    k = len(c.spheres)
+    rows = jax.eval_shape(
+        lambda c: constraint_rows(c, jnp.zeros((k, 3)), jnp.zeros(k), jnp.zeros(3))[0], c
+    )
+    return rows.shape[0]
+
+
 def pose_violations(body: Body, pose: Pose, c: Constraints | None) -> Array:
     """Each constraint kind's violation (m) in a pose, from `forward`: what the result
     reports, whichever phase solved it."""

@@ -3,6 +3,7 @@ the body and an environment, in single and batch solves; bad constraints are rej
 clearly. The properties hold for every answer, reached or not (docs/design.md, section 10).
 """
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -219,3 +220,31 @@ def test_each_environment_keeps_its_own_segments_and_margin(male50):
     for r, seg in enumerate(rows):
         on_arm = male50.segment_names[seg] in ARM_SPHERES
         np.testing.assert_array_equal(margin[r], [OFF, 0.01] if on_arm else [0.0, OFF])
+
+
+@pytest.mark.parametrize(
+    "given",
+    [
+        [],
+        [db.Target.on_floor(), db.Target.balance()],
+        [db.Target.no_contact(ARM_SPHERES), db.Target.on_floor(), db.Target.balance()],
+        [db.Target.no_contact(ARM_SPHERES, environment=db.Environment.floor())],
+    ],
+)
+def test_the_constraint_row_count_is_the_rows_a_problem_makes(male50, given):
+    """`row_count`, from the constraints' shapes alone (no walk traced), is the number of
+    constraint rows the problem's residuals hold (reference: the rows themselves)."""
+    from diffbody.ik._phases import phase_layouts
+    from diffbody.problem._constraints import row_count
+    from diffbody.problem._problem import make_problem
+    from diffbody.problem._targets import resolve_targets
+
+    rest = male50.rest_pose()
+    ts, _ = resolve_targets(male50, [db.Target.position("left_hand.palm", (0.4, 0.3, 1.0))])
+    c = resolve_constraints(male50, given, rest) if given else None
+    ts = eqx.tree_at(lambda t: t.constraints, ts, c, is_leaf=lambda x: x is None)
+    layout = phase_layouts(male50, [ts], spine=True, free_root=False, segments=None)[-1]
+    problem = make_problem(male50, layout, rest)
+    rows = problem.rows(jnp.zeros(layout.n_free), ts).constraints
+    assert row_count(c) == rows.shape[0]
+    assert (rows.shape[0] > 0) == bool(given)
