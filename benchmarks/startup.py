@@ -113,7 +113,7 @@ print(json.dumps(line))
 """
 OTHERS_ROW = "then 3 other arm reaches (effectors, 2 targets, a palm direction): programs compiled"
 FAR_ROW = "then another far reach, standing (another effector): programs compiled"
-SUBSET_ROW = "then a segment subset (no standing: another constraint set): programs compiled"
+SUBSET_ROW = "then a segment subset (no standing: no constraint): programs compiled"
 IMPORT = """\
 import json, time
 t0 = time.perf_counter()

@@ -144,7 +144,8 @@ def padded_errors(a: Attempt, ts: TargetSet) -> Attempt:
     n_p, n_a = len(ts.point_index), len(ts.axis_segment)
 
     def pad(e, n: int, rows: int) -> np.ndarray:
-        return np.concatenate([np.asarray(e)[:n], np.zeros(rows - n)])
+        e = np.asarray(e)[:n]  # its dtype kept: a float64 pad would key another conclusion
+        return np.concatenate([e, np.zeros(rows - n, e.dtype)])
 
     errors = (pad(a.err_p, n_p, P), pad(a.err_a, n_a, A))
     return eqx.tree_at(lambda a: (a.err_p, a.err_a), a, errors)

@@ -7,6 +7,7 @@ solve, differentiated implicitly (`_attempt`). Then the standard orientation is 
 (`_post_projection`) and the errors are reported per target.
 """
 
+import dataclasses
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -163,9 +164,10 @@ def solve_reach(
     if plans is None:
         keep = keep_mask(body, final, ts.constraints) if project else None
         return _conclude_jit(body, keep, True, best, ts, back, beyond, steps, tols, False)
-    # The whole tree's conclusion: one program for every effector set of a bucket (the
-    # projection's twists and the targets' order as data), cut to the targets on the host.
-    padded = padded_targets(ts)
+    # The whole tree's conclusion: one program for every effector set of a bucket and
+    # every constraint set (the projection's twists and the targets' order as data; the
+    # violations after it, `_with_violations`), cut to the targets on the host.
+    padded = padded_targets(_with(ts, None))
     n_p, P, A = len(ts.point_index), *targets_rows(ts)
     back = np.where(back < n_p, back, back - n_p + P)
     back = np.concatenate([back, np.setdiff1d(np.arange(P + A), back)])
@@ -178,7 +180,8 @@ def solve_reach(
         zero = np.zeros(3, np.asarray(best.pose.angles).dtype)
         best = eqx.tree_at(lambda b: b.pose.spine_target, best, zero, is_leaf=is_none)
     args = (best, padded, back, beyond, steps, tols, True, device_array(bent, bool))
-    return _cut(_conclude_jit(body, keep, flag, *args), len(order), bent)
+    result = _with_violations(body, _conclude_jit(body, keep, flag, *args), ts.constraints, tols)
+    return _cut(result, len(order), bent)
 
 
 def constrained_targets(
@@ -267,6 +270,23 @@ def _conclude(
     pose = finish(body, Pose(position=best.pose.position, angles=angles), keep, project)
     result = _result(body, pose, best, ts, back, beyond, steps, tols, padded)
     return eqx.tree_at(lambda r: r.pose.spine_target, result, target, is_leaf=is_none)
+
+
+def _with_violations(body: Body, result: ReachResult, c, tols) -> ReachResult:
+    """A conclusion's result (host, its targets padded) with the constraints' violations
+    of its pose and the status they give (as `_result` gives them)."""
+    if c is None:
+        return result
+    # The pose's spine as angles (the conclusion's vertebrae): `forward`'s program of a
+    # pose without a spine target, the set-up's.
+    pose = Pose(position=result.pose.position, angles=result.pose.angles)
+    violation = np.asarray(pose_violations(body, pose, c), np.asarray(result.residuals).dtype)
+    reached, valid, beyond = (np.asarray(a) for a in (result.reached, result.valid, result.beyond))
+    status = reach_status(reached, valid, beyond, violation <= float(tols[0]))
+    put = jax.device_put
+    return dataclasses.replace(
+        result, violation=put(violation), status=put(status), constraint_names=c.kinds
+    )
 
 
 def _cut(result: ReachResult, n: int, bent: bool = True) -> ReachResult:

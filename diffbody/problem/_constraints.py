@@ -22,7 +22,7 @@ from .._body import Body, Pose
 from .._body_cache import RANGES, BodyCache
 from .._device_arrays import device_array
 from .._kinematics import forward
-from .._programs import is_traced
+from .._programs import compiled, is_traced
 from ..contact._distances import closest_pair_gaps, environment_gaps
 from ..contact._environment import Environment
 from ..contact._pairs import sphere_pairs
@@ -286,9 +286,25 @@ def row_count(c: Constraints | None) -> int:
 
 def pose_violations(body: Body, pose: Pose, c: Constraints | None) -> Array:
     """Each constraint kind's violation (m) in a pose, from `forward`: what the result
-    reports, whichever phase solved it."""
+    reports, whichever phase solved it. With a concrete pose, `forward`'s one program per
+    body and a small one per constraint set (`_worst`): a conclusion that leaves the
+    constraints out is one program for every constraint set."""
     if c is None:
         return jnp.zeros(0)
     k = forward(body, pose)
     idx = np.asarray(c.spheres, int)
-    return constraint_rows(c, k.sphere_centers[idx], k.sphere_radii[idx], k.center_of_gravity)[1]
+    if is_traced(body, pose, c):
+        return _worst(c, k.sphere_centers[idx], k.sphere_radii[idx], k.center_of_gravity)
+    # On the host: NumPy's indexing compiles nothing (a device array's would, per shape).
+    centers, radii, cog = (
+        np.asarray(a) for a in (k.sphere_centers, k.sphere_radii, k.center_of_gravity)
+    )
+    return _worst_jit(c, centers[idx], radii[idx], cog)
+
+
+def _worst(c: Constraints, centers: Array, radii: Array, cog: Array) -> Array:
+    """Each kind's violation (`constraint_rows`)."""
+    return constraint_rows(c, centers, radii, cog)[1]
+
+
+_worst_jit = compiled(_worst)

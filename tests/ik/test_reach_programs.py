@@ -75,20 +75,53 @@ def test_a_standing_solve_compiles_each_phase_once(male50, monkeypatch):
     assert "_forward" not in names, names
 
 
-def test_an_arm_reach_after_a_standing_one_compiles_nothing(male50, monkeypatch):
-    """A regression: the conclusion of a limbs' answer (no spine target) compiled a program
-    of its own (1.3 s) beside the one of a standing answer (a spine target). Whether the
-    spine is bent is data now: after a far standing reach alone, in a fresh state, an arm
-    reach compiles nothing."""
+def test_after_a_standing_reach_the_conclusion_compiles_no_more(male50, monkeypatch):
+    """Regressions: the conclusion of a limbs' answer (no spine target) compiled a program
+    of its own (1.3 s) beside the one of a standing answer (a spine target), and so did
+    every other constraint set (a segment subset's: none; 1.1 s), and an answer whose
+    errors were padded in float64. Whether the spine is bent is data, and the violations
+    are reckoned after the conclusion: after a far standing reach alone, in a fresh state,
+    an arm reach and a segment subset's compile nothing, and a reach avoiding contact
+    compiles its round and its violations, not a conclusion."""
     jax.clear_caches()
     monkeypatch.setattr(_programs, "_LOADED", {})
     monkeypatch.setattr(_programs, "_SEEN", {})
     far = db.solve_reach(male50, [Target.position("left_hand.palm", (0.3, 0.9, 0.8))])
     assert far.pose.spine_target is not None  # the trunk joined
+    arm = ["left_clavicle", "left_upper_arm", "left_forearm", "left_hand"]
     with counted_compiles() as seen:
         out = db.solve_reach(male50, [Target.position("right_wrist", (-0.25, 0.3, 1.15))])
+        sub = db.solve_reach(male50, [Target.position("left_wrist", (0.3, 0.3, 1.2))], segments=arm)
     assert seen == []
     assert int(out.status) == 0 and out.pose.spine_target is None
+    assert int(sub.status) == 0 and sub.constraint_names == () and sub.violation.shape == (0,)
+    spheres = ["left_upper_arm", "left_forearm", "left_hand"]
+    given = [Target.position("left_hand.palm", (0.3, 0.3, 1.0)), Target.no_contact(spheres)]
+    with compiled_names() as names:
+        avoid = db.solve_reach(male50, given)
+    assert "_conclude" not in names, names
+    assert int(avoid.status) == 0 and avoid.constraint_names == (
+        "no_contact",
+        "on_floor",
+        "balance",
+    )
+
+
+def test_the_reported_violations_are_the_pose_s(male50):
+    """The violations reckoned after the conclusion, on the host (`forward`'s program and
+    one per constraint set), are those of the answer's pose reckoned inside one traced
+    program (reference: `pose_violations` under `jax.jit`), and the status follows them;
+    on a far standing reach whose pose carries its spine target."""
+    from diffbody.problem._constraints import pose_violations
+
+    target = Target.position("left_hand.palm", (0.9, 0.193, 1.1))
+    out = db.solve_reach(male50, [target])
+    assert out.pose.spine_target is not None and len(out.constraint_names) == 3
+    ts, _ = resolve_targets(male50, [target])
+    c = constrained_targets(male50, ts, [], male50.rest_pose(), True)[-1].constraints
+    traced = jax.jit(lambda pose: pose_violations(male50, pose, c))(out.pose)
+    np.testing.assert_allclose(out.violation, traced, rtol=0, atol=1e-6)
+    assert (int(out.status) == 0) == bool(np.all(out.reached) and np.all(out.violation <= 1e-3))
 
 
 def test_a_limbs_answer_keeps_the_vertebrae_of_its_start(male50):
