@@ -222,7 +222,8 @@ def _polymorphic(args: tuple, rows: tuple[int, ...]) -> list[jax.ShapeDtypeStruc
     for i, arg in enumerate(args):
         for a in jax.tree.leaves(eqx.filter(arg, eqx.is_array)):
             shape = jnp.shape(a)
-            specs.append(jax.ShapeDtypeStruct((n, *shape[1:]) if i in rows else shape, a.dtype))
+            dtype = jnp.result_type(a)  # canonical: float64 is float32 without x64
+            specs.append(jax.ShapeDtypeStruct((n, *shape[1:]) if i in rows else shape, dtype))
     return specs
 
 

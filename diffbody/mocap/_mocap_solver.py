@@ -8,12 +8,15 @@ segments (`mocap_layout`), one walk and one closed-form Jacobian per evaluation
 (`tree_markers`).
 """
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike
 
+from .._body import Body, Pose
 from .._programs import compiled
 from .._solver import least_squares_solver, tolerance
 from ..files._marker_trial import MarkerTrial
@@ -75,3 +78,14 @@ def robust_rows(rows: Array, squared: Array, scale: ArrayLike) -> Array:
 
 
 make_problem_jit = compiled(make_problem)
+
+
+def rest_start(body: Body) -> Pose:
+    """The body's rest pose with its spine named as its Bendspine target (the rest angles'
+    total, on the host): the structure of every other start of a fit (a fitted pose), so
+    that one compiled `make_problem` serves them all. The same frames as the rest pose."""
+    pose = body.rest_pose()
+    if body.spine is None:
+        return pose
+    total = np.asarray(body.spine.rest).sum(0).astype(np.asarray(pose.angles).dtype)
+    return dataclasses.replace(pose, spine_target=jax.device_put(total))

@@ -39,6 +39,7 @@ from ._mocap_solver import (
     make_problem_jit,
     make_solver,
     masked_targets,
+    rest_start,
     robust_rows,
 )
 from ._motion_limits import LIMITS, motion_limits
@@ -295,7 +296,7 @@ def fit_motion(
     fitted = markerset.select([markerset.names[i] for i in order])
     lay = mocap_layout(template, fitted)
     problem = make_problem_jit(template, lay.pose, start)
-    x_rest = make_problem_jit(template, lay.pose, template.rest_pose()).x0
+    x_rest = make_problem_jit(template, lay.pose, rest_start(template)).x0
     starts = jnp.stack([problem.x0, x_rest])
     offsets = jax.device_put(np.asarray(fitted.offsets, dtype))
     arrays = frame_arrays(trial.select(fitted.names), w[order], dtype)

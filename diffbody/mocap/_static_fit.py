@@ -42,6 +42,7 @@ from ._mocap_solver import (
     make_problem_jit,
     make_solver,
     masked_targets,
+    rest_start,
 )
 from ._motion_fit import fit_motion
 from ._motion_limits import LIMITS, motion_limits
@@ -363,7 +364,7 @@ def scale_and_register(
             f"{MIN_MARKERS} markers of the set {markerset.name!r} present; the body cannot "
             "be placed"
         )
-    rest = template.rest_pose()
+    rest = rest_start(template)
     state = _Static(
         problem=make_problem_jit(template, lay.pose, rest),
         markerset=markerset,

@@ -948,3 +948,23 @@ def test_motion_limits(male50):
     assert float(b.swing_lo[shank, 0]) == float(male50.swing_lo[shank, 0])
     spine = [i for i, n in enumerate(b.segment_names) if n[0] in "LTC" and n[1:].isdigit()]
     np.testing.assert_array_equal(np.asarray(b.swing_lo)[spine], np.asarray(male50.swing_lo)[spine])
+
+
+def test_the_rest_start_is_the_rest_pose_in_a_fitted_pose_s_structure(male50, static_fit):
+    """A regression: the registration built its problem from the rest pose (no spine
+    target) and the motion fit from the fitted pose (a spine target): two compiled
+    `make_problem`s (0.8 s). `rest_start` names the rest angles' total as the spine target:
+    the structure of a fitted pose, and the same problem as the rest pose (reference: the
+    problem of the rest pose itself, to rounding)."""
+    from diffbody.mocap._mocap_solver import make_problem_jit, rest_start
+    from diffbody.problem._problem import make_problem
+
+    fitted = static_fit.pose
+    start = rest_start(male50)
+    assert jax.tree.structure(start) == jax.tree.structure(fitted)
+    markerset = load_markerset("opensim-gait", male50)
+    lay = mocap_layout(male50, markerset)
+    ours = make_problem_jit(male50, lay.pose, start)
+    plain = make_problem(male50, lay.pose, male50.rest_pose())
+    np.testing.assert_allclose(ours.x0, plain.x0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ours.R_socket0, plain.R_socket0, rtol=0, atol=1e-9)
