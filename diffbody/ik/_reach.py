@@ -179,7 +179,8 @@ def solve_reach(
     if body.spine is not None and not bent:
         zero = np.zeros(3, np.asarray(best.pose.angles).dtype)
         best = eqx.tree_at(lambda b: b.pose.spine_target, best, zero, is_leaf=is_none)
-    args = (best, padded, back, beyond, steps, tols, True, device_array(bent, bool))
+    bent_data = None if body.spine is None else device_array(bent, bool)  # None: no spine
+    args = (best, padded, back, beyond, steps, tols, True, bent_data)
     result = _with_violations(body, _conclude_jit(body, keep, flag, *args), ts.constraints, tols)
     return _cut(result, len(order), bent)
 

@@ -107,6 +107,21 @@ def test_after_a_standing_reach_the_conclusion_compiles_no_more(male50, monkeypa
     )
 
 
+def test_a_body_without_a_spine_database_concludes_without_a_stand_in(tmp_path):
+    """A regression: the conclusion's stand-in spine target bent a spine the body does not
+    have (AttributeError). A body without a spine database (`bodies.MINI`) reaches its
+    wrist target with no spine target in its answer."""
+    from bodies import mini_doc, write
+
+    mini = db.load_body(write(mini_doc(), tmp_path / "mini.json"))
+    assert mini.spine is None
+    wrist = np.asarray(db.forward(mini, mini.rest_pose()).joint_positions)[-1]
+    target = Target.position("left_wrist", wrist + [0.05, 0.05, -0.05])
+    out = db.solve_reach(mini, [target])
+    assert int(out.status) == 0 and out.pose.spine_target is None
+    assert float(out.residuals[0]) < 1e-3
+
+
 def test_the_reported_violations_are_the_pose_s(male50):
     """The violations reckoned after the conclusion, on the host (`forward`'s program and
     one per constraint set), are those of the answer's pose reckoned inside one traced
