@@ -26,13 +26,13 @@ from jaxtyping import Array, ArrayLike
 from .._body import Body, Pose
 from .._body_cache import RANGES, BodyCache
 from .._device_arrays import device_array
-from .._kinematics import Links, forward
+from .._kinematics import Links
 from .._programs import compiled, is_traced
 from .._spine import spine_angles
 from ..problem._problem import make_problem, stiffness_of
 from ..problem._targets import TargetSet
 from ..problem._tree import padded_targets, tree_layout
-from ..problem._unknowns import Layout, make_layout, point_segment
+from ..problem._unknowns import Layout, make_layout
 from ._attempt import (
     Attempt,
     Settings,
@@ -46,6 +46,7 @@ from ._attempt import (
 )
 from ._limb_groups import joined, limb_groups
 from ._plans import fits_tree, make_limb_plan, make_plan, padded_errors
+from ._reach_bounds import beyond_bound, host_links, out_of_reach, rest_links
 
 
 def is_none(x) -> bool:
@@ -107,152 +108,22 @@ def _phase_layouts(body, phase_targets, spine, free_root, segments, stand) -> li
     return [limbs, full]
 
 
-def _own_extra(body: Body, index: int) -> float:
-    """How far a feature effector can lie beyond its segment's distal joint (0 for a
-    joint): its sphere's farthest point from the proximal joint, less the length."""
-    n_j = body.n_joints
-    if index < n_j:
-        return 0.0
-    sph = body.feature_sphere[index - n_j]
-    origin, radius = (np.asarray(a)[sph] for a in (body.sphere_origins, body.sphere_radii))
-    seg = body.sphere_segment[sph]
-    return max(float(np.linalg.norm(origin) + radius) - float(np.asarray(body.lengths)[seg]), 0.0)
-
-
-def reach_bound(body: Body, layout: Layout, links: Links) -> tuple[np.ndarray, np.ndarray]:
-    """Per point target, the fixed point its chain hangs from (n_p, 3; start links, global
-    order) and the farthest its effector can be from it (n_p,): the sum of the live
-    segments' lengths on its path, the effector's own segment counted to the effector. inf
-    where the root is free or the whole tree moves (no fixed point); standing, from the
-    ankle of the first of `Body.feet` (the left), the leg counted too."""
-    n_j = body.n_joints
-    lengths = np.asarray(body.lengths)
-    live = set(layout.chain.segments)
-    anchor, bound = [], []
-    for index in layout.points:
-        seg = point_segment(body, index)
-        path = [s for s in body.path_to_top(seg) if s in live]
-        if layout.standing and not layout.full and path:
-            # Standing, the chain hangs from a planted foot: from its ankle, up the leg.
-            foot = body.feet[0]
-            leg = list(body.path_to_top(foot)[1:])
-            anchor.append(np.asarray(links.p_proximal[foot]))
-            bound.append(sum(lengths[s] for s in set(path + leg)) + _own_extra(body, index))
-            continue
-        if layout.root or layout.full or not path:
-            anchor.append(np.zeros(3))
-            bound.append(np.inf if path else 0.0)
-            continue
-        top = path[-1]
-        anchor.append(np.asarray(links.p_proximal[top]))
-        own = lengths[seg]
-        if index >= n_j:
-            sph = body.feature_sphere[index - n_j]
-            origin, radius = (np.asarray(a)[sph] for a in (body.sphere_origins, body.sphere_radii))
-            own = float(np.linalg.norm(origin) + radius)
-        bound.append(sum(lengths[s] for s in path if s != seg) + (own if seg in live else 0.0))
-    return np.asarray(anchor).reshape(-1, 3), np.asarray(bound)
-
-
-def host_links(body: Body, init: Pose) -> Links:
-    """The start's links of every segment (global order) as NumPy arrays, read off
-    `forward` (one compiled program per body, shared with the pictures and the set-up of
-    the constraints): a segment's proximal joint is its parent's distal one."""
-    k = forward(body, init)
-    joints = np.asarray(k.joint_positions)
-    # Filled in by tree_at, as NumPy arrays: Links' annotations name JAX arrays.
-    links = Links(k.R_world_base, k.R_world_twisted, k.centroids, k.centroids)
-    return eqx.tree_at(
-        lambda li: (li.R_base, li.R_twisted, li.p_proximal, li.p_distal),
-        links,
-        (
-            np.asarray(k.R_world_base),
-            np.asarray(k.R_world_twisted),
-            joints[np.asarray(body.parent) + 1],
-            joints[1:],
-        ),
-    )
-
-
-def beyond_bound(body: Body, layout: Layout, init: Pose, xyz: ArrayLike, links=None) -> np.ndarray:
-    """Whether point targets xyz (..., n_p, 3) lie beyond the phase's reach bound, the sum
-    of its chain's lengths (host): what `ReachResult.beyond` reports. `links`: the start's
-    (`host_links`), when already at hand."""
-    links = host_links(body, init) if links is None else links
-    anchor, bound = reach_bound(body, layout, links)
-    return _farther(xyz, anchor, bound)
-
-
-def out_of_reach(body: Body, layout: Layout, init: Pose, xyz: ArrayLike, links=None) -> np.ndarray:
-    """Whether point targets xyz (..., n_p, 3) lie out of the phase's reach (host): farther
-    from every place the top segment of their chain can put its distal joint than the rest
-    of the chain is long. The top segment swings within its cone (the clavicle by 20
-    degrees), so its distal joint stays on a cap of the sphere around its proximal joint;
-    the rest is bounded by its lengths. A necessary condition for a reach, tighter than
-    `beyond_bound` where the chain hangs from a segment of little swing."""
-    links = host_links(body, init) if links is None else links
-    anchor, bound = reach_bound(body, layout, links)
-    lengths, swing_lo, swing_hi, swing_max, R_parent_socket, R_socket_rest = (
-        np.asarray(a)
-        for a in (
-            body.lengths,
-            body.swing_lo,
-            body.swing_hi,
-            body.swing_max,
-            body.R_parent_socket,
-            body.R_socket_rest,
-        )
-    )
-    xyz = np.asarray(xyz, float)
-    out = _farther(xyz, anchor, bound)
-    live = set(layout.chain.segments)
-    for j, index in enumerate(layout.points):
-        seg = point_segment(body, index)
-        path = [s for s in body.path_to_top(seg) if s in live]
-        if layout.root or layout.full or len(path) < 2 or not np.isfinite(bound[j]):
-            continue
-        top = path[-1]
-        length = float(lengths[top])
-        lo, hi = np.abs(swing_lo[top]), np.abs(swing_hi[top])
-        half = min(float(swing_max[top]), float(np.hypot(*np.maximum(lo, hi))), np.pi)
-        R_socket = links.R_twisted[int(body.parent[top])] @ R_parent_socket[top]
-        centre = R_socket @ R_socket_rest[top][:, 2]
-        with np.errstate(invalid="ignore", over="ignore"):
-            v = xyz[..., j, :] - anchor[j]
-            D = np.linalg.norm(v, axis=-1)
-            cos = np.clip(v @ centre / np.where(D > 0, D, 1.0), -1.0, 1.0)
-            beta = np.arccos(cos)
-            gap = np.where(
-                beta <= half,
-                np.abs(D - length),
-                np.sqrt(np.maximum(D**2 + length**2 - 2 * D * length * np.cos(beta - half), 0)),
-            )
-            out[..., j] |= np.isfinite(D) & (gap > bound[j] - length)
-    return out
-
-
-def _farther(xyz: ArrayLike, anchor: np.ndarray, bound: np.ndarray) -> np.ndarray:
-    """Whether points xyz (..., n_p, 3) lie farther than `bound` (n_p,) from `anchor`."""
-    xyz = np.asarray(xyz, float)
-    with np.errstate(invalid="ignore", over="ignore"):
-        # |xyz - anchor| scaled by its largest component, so 1e30 m does not overflow.
-        d = xyz - anchor
-        scale = np.max(np.abs(d), axis=-1)
-        scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
-        dist = scale * np.linalg.norm(d / scale[..., None], axis=-1)
-        return np.isfinite(xyz).all(-1) & (dist > bound)
-
-
 def phase_plan(
-    body: Body, layouts: list[Layout], phase: int, init: Pose, xyz: ArrayLike, max_steps: int
+    body: Body,
+    layouts: list[Layout],
+    phase: int,
+    init: Pose,
+    xyz: ArrayLike,
+    max_steps: int,
+    links: Links | None = None,
 ) -> tuple[np.ndarray, np.ndarray, list[int]]:
     """For phase `phase` from `init`: per point target whether it is beyond the reach bound
     (reported) and out of reach (no further start), and the round caps of a start out of
     reach: every round, so that a limb reaching for what it cannot reach ends at its closest
     reach, where the trunk phase starts (from a limb stopped short, Levenberg-Marquardt
-    bends the spine further than the arm falls short)."""
+    bends the spine further than the arm falls short). `links`: `init`'s, when at hand."""
     layout = layouts[phase]
-    links = host_links(body, init)
+    links = host_links(body, init) if links is None else links
     beyond = beyond_bound(body, layout, init, xyz, links)
     far = out_of_reach(body, layout, init, xyz, links)
     return beyond, far, round_caps(max_steps)
@@ -366,17 +237,20 @@ def phase_targets_of(layouts: list[Layout], phase_targets: Sequence[TargetSet]) 
     return list(phase_targets) if len(layouts) == len(phase_targets) else [phase_targets[-1]]
 
 
-def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plans=None):
+def solve_host(body, layouts, init, phase_targets, starts, max_steps, tols, plans=None, rest=False):
     """Phases, starts and rounds driven from the host: each runs only if needed. Returns
     the kept `Attempt`, the solver steps over all attempts, and per point target whether it
     lies beyond the reach bound of the last phase tried. `plans` (`phase_plans`): run on
     the whole tree's program (the attempts' errors then padded to the targets' buckets), or
-    a limbs' phase on several limbs on each limb's chain (`_limb_groups`)."""
+    a limbs' phase on several limbs on each limb's chain (`_limb_groups`). `rest`: `init`
+    is the standard position (its links remembered, `rest_links`)."""
     best, steps = None, 0
     start_pose = init
     for phase, (layout, ts) in enumerate(zip(layouts, phase_targets_of(layouts, phase_targets))):
         steps_k = phase_steps(layout, max_steps)
-        beyond, far, caps = phase_plan(body, layouts, phase, start_pose, ts.point_xyz, steps_k)
+        links = rest_links(body) if rest and phase == 0 else None
+        xyz = ts.point_xyz
+        beyond, far, caps = phase_plan(body, layouts, phase, start_pose, xyz, steps_k, links)
         if not far.any():
             caps = round_caps(steps_k)
         planned = None if plans is None else plans[phase]

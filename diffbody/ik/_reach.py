@@ -154,7 +154,8 @@ def solve_reach(
     if traced:
         best, steps, beyond = solve_traced(body, layouts, init, phase_targets, *settings)
     else:
-        best, steps, beyond = solve_host(body, layouts, init, phase_targets, *settings, plans)
+        rest = default_init
+        best, steps, beyond = solve_host(body, layouts, init, phase_targets, *settings, plans, rest)
     back = np.argsort(order)
     if not traced:
         # On the host, every leaf alike: committed device arrays beside host ones would

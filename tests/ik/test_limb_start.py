@@ -9,7 +9,8 @@ from limb_poses import random_limb_angles
 
 import diffbody as db
 from diffbody.ik._limb_start import limb_start, limbs
-from diffbody.ik._phases import beyond_bound, out_of_reach, phase_layouts
+from diffbody.ik._phases import phase_layouts
+from diffbody.ik._reach_bounds import beyond_bound, out_of_reach
 from diffbody.problem._problem import make_problem
 from diffbody.problem._targets import resolve_targets
 
@@ -82,3 +83,18 @@ def test_a_target_past_the_arm_is_out_of_the_limbs_reach(male50):
     assert not beyond_bound(male50, limbs_phase, rest, xyz).any()
     np.testing.assert_array_equal(out_of_reach(male50, limbs_phase, rest, xyz)[:, 0], [0, 1])
     assert not out_of_reach(male50, trunk_phase, rest, xyz).any()
+
+
+def test_the_standard_position_s_links_are_remembered_per_body(male50, female50):
+    """`rest_links`, which every default reach starts its first phase from, is kept per
+    body: the same object again, equal to the links of the rest pose (reference:
+    `host_links` of it), and another body's own (other lengths, other joints)."""
+    from diffbody.ik._reach_bounds import host_links, rest_links
+
+    kept = rest_links(male50)
+    assert rest_links(male50) is kept
+    ref = host_links(male50, male50.rest_pose())
+    for a, b in zip(jax.tree.leaves(kept), jax.tree.leaves(ref)):
+        np.testing.assert_array_equal(a, b)
+    other = rest_links(female50)
+    assert np.abs(np.asarray(other.p_distal) - np.asarray(kept.p_distal)).max() > 0.01
