@@ -22,7 +22,6 @@ from .._device_arrays import device_array
 from .._programs import compiled
 from .._statuses import ReachStatus
 from ..problem._constraints import (
-    GEOMETRY,
     is_constraint,
     pose_violations,
     resolve_constraints,
@@ -40,6 +39,7 @@ from ._post_projection import (
     spine_as_angles,
     vertebrae_mask,
 )
+from ._reach_bounds import STANDARD_POSITION
 
 # solve_reach returns device arrays; solve_reach_batch returns host (numpy) arrays with a
 # leading batch axis.
@@ -212,8 +212,8 @@ def constrained_targets(
     return [_with(ts, limbs), _with(ts, trunk)]
 
 
-# Planted in the standard position: `forward` reads the socket turns and the pinned frame too.
-_DEFAULT = BodyCache(GEOMETRY + ("R_parent_socket", "R_world_pin_rest"), size=64)
+# Planted in the standard position (what `forward` of it reads).
+_DEFAULT = BodyCache(STANDARD_POSITION, size=64)
 
 
 def _with(ts: TargetSet, c) -> TargetSet:

@@ -86,7 +86,9 @@ def rest_links(body: Body) -> Links:
     return _REST_LINKS.get(body, None, lambda: host_links(body, body.rest_pose()))
 
 
-_REST_LINKS = BodyCache(GEOMETRY + ("R_parent_socket", "R_world_pin_rest"), size=64)
+# What `forward` of the standard position reads: the socket turns and the pinned frame too.
+STANDARD_POSITION = GEOMETRY + ("R_parent_socket", "R_world_pin_rest")
+_REST_LINKS = BodyCache(STANDARD_POSITION, size=64)
 
 
 def beyond_bound(body: Body, layout: Layout, init: Pose, xyz: ArrayLike, links=None) -> np.ndarray:
